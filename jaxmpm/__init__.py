@@ -1,0 +1,18 @@
+"""jaxmpm: differentiable multi-velocity (multiphase) Material Point Method with DDMP, in JAX.
+
+    scene  = jaxmpm.load_scene("elastic_impact")
+    params = jaxmpm.default_params(scene)
+    state  = jaxmpm.init_state(scene, params)
+    step   = jaxmpm.make_step(scene)                   # pure: step(params, state) -> state
+    final, history = jaxmpm.simulate(scene, params, state, t_end=..., n_out=10)
+"""
+from jaxmpm import diagnostics as diagnostics
+from jaxmpm.materials import Material as Material
+from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params
+from jaxmpm.scene import Boundary as Boundary, Box as Box, Grid as Grid, Phase as Phase, Scene as Scene, Sphere as Sphere
+from jaxmpm.scenefile import load_scene as load_scene, scene_from_dict as scene_from_dict, scene_to_toml as scene_to_toml
+from jaxmpm.simulate import cfl_limit as cfl_limit, plan_steps as plan_steps, simulate as simulate
+from jaxmpm.state import State as State, init_state as init_state
+from jaxmpm.step import make_step as make_step
+
+__version__ = "0.1.0"

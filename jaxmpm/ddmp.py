@@ -1,0 +1,122 @@
+"""DDMP node-to-node operators as grid stencils (PHYSICS 2.2, E9-E12 with rules R1-R3).
+
+With the linear hat S_n and the nodal fill theta(x) = sum_n theta_n S_n(x) (R1), on the cells that
+hold particles of the field (cell mask, R2):
+  V_j          = sum_n theta_n integral(S_j S_n)                       (R3)
+  (S_j, grad S_i) = sum_n theta_n integral(S_j S_n grad S_i)
+Both are exact integrals of products of hat functions, assembled cell by cell from tensor products
+of 1D integrals on the reference cell: A_c[j, i, :] is the contribution of cell c to (S_j, grad S_i)
+for its corner nodes j, i. The force (E11) and velocity gradient (E12) use the same A and V, so
+they are adjoint (energy-consistent) and exact for linear velocity fields.
+
+Nodal arrays here are dense: (K, *nodes, ...) with K velocity fields; cell arrays (K, *cells, ...).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.state import stencil_offsets
+
+# 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
+_P2 = np.array([[1 / 3, 1 / 6], [1 / 6, 1 / 3]])
+_P3 = np.array([[[1 / 4, 1 / 12], [1 / 12, 1 / 12]], [[1 / 12, 1 / 12], [1 / 12, 1 / 4]]])
+_D3 = _P2[:, :, None] * np.array([-1.0, 1.0])[None, None, :]   # integral phi_a phi_b phi_c'
+
+
+@functools.lru_cache(maxsize=8)
+def cell_tensors(dim: int, h: float):
+    """T0[j, n] = integral over a cell of S_j S_n (m^d);
+    Tg[j, n, i, k] = integral of S_j S_n dS_i/dx_k (m^(d-1)); j, n, i corner indices (2^d)."""
+    off = stencil_offsets(dim, 2)
+    s = len(off)
+    T0 = np.ones((s, s))
+    Tg = np.ones((s, s, s, dim))
+    for e in range(dim):
+        a = off[:, e]
+        T0 *= _P2[a[:, None], a[None, :]]
+        p3 = _P3[a[:, None, None], a[None, :, None], a[None, None, :]]
+        d3 = _D3[a[:, None, None], a[None, :, None], a[None, None, :]]
+        for k in range(dim):
+            Tg[..., k] *= d3 if k == e else p3
+    return T0 * h**dim, Tg * h ** (dim - 1)
+
+
+def corners(a, dim):
+    """Nodal (K, *nodes, ...) -> per-cell corner values (K, *cells, 2^d, ...)."""
+    out = []
+    for o in stencil_offsets(dim, 2):
+        idx = (slice(None),) + tuple(slice(int(o[k]), a.shape[1 + k] - 1 + int(o[k])) for k in range(dim))
+        out.append(a[idx])
+    return jnp.stack(out, axis=1 + dim)
+
+
+def add_corners(c, dim):
+    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...)."""
+    total = 0
+    extra = c.ndim - 2 - dim
+    for s, o in enumerate(stencil_offsets(dim, 2)):
+        pad = [(0, 0)] + [(int(o[k]), 1 - int(o[k])) for k in range(dim)] + [(0, 0)] * extra
+        total = total + jnp.pad(jnp.take(c, s, axis=1 + dim), pad)
+    return total
+
+
+def node_support(grid) -> np.ndarray:
+    """(R1) support volume of each node inside the domain, (*nodes,) m^d: h per axis, h/2 at grid edges."""
+    vol = np.ones(grid.nodes)
+    for k, n in enumerate(grid.nodes):
+        f = np.full(n, grid.h)
+        f[0] = f[-1] = grid.h / 2
+        shape = [1] * grid.dim
+        shape[k] = n
+        vol = vol * f.reshape(shape)
+    return vol
+
+
+def _safe_div(a, b, bmin):
+    ok = b > bmin
+    return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class DDMPGrid:
+    V: jax.Array      # (K, *nodes) V_j of (R3), m^d
+    A: jax.Array      # (K, *cells, 2^d, 2^d, d) per-cell (S_j, grad S_i), m^(d-1)
+    theta: jax.Array  # (K, *nodes) nodal fill of (R1)
+
+
+def build(grid, nodal_volume, cell_occupied):
+    """Assemble V and A from the nodal particle volume (K, *nodes) = sum_p V_p S_n(x_p) and the
+    cell occupancy (K, *cells) (> 0 where the field has particles)."""
+    d = grid.dim
+    T0, Tg = cell_tensors(d, grid.h)
+    dtype = nodal_volume.dtype
+    theta = jnp.clip(nodal_volume / jnp.asarray(node_support(grid), dtype), 0.0, 1.0)    # (R1)
+    tc = corners(theta, d) * (cell_occupied > 0)[..., None].astype(dtype)                 # (R2)
+    Vc = jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
+    A = jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))
+    V = add_corners(Vc, d)                                                               # (R3)
+    return DDMPGrid(V=V, A=A, theta=theta)
+
+
+def nodal_stress_force(grid, dg, sigma_hat_volume):
+    """(E11) second part: f_i = - sum_j sigma_hat_j . (S_j, grad S_i).
+    sigma_hat_volume: (K, *nodes, d, d) = sum_p V_p (1 - beta_p) sigma_p S_j(x_p) (Pa m^d).
+    Returns (K, *nodes, d) in N."""
+    d = grid.dim
+    vmin = 1e-12 * grid.h**d
+    sig_hat = _safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
+    fc = -jnp.einsum("...jab,...jib->...ia", corners(sig_hat, d), dg.A)
+    return add_corners(fc, d)
+
+
+def nodal_velocity_gradient(grid, dg, v):
+    """(E12) L-bar_j = (1 / V_j) sum_i v_i (x) (S_j, grad S_i). v: (K, *nodes, d) -> (K, *nodes, d, d)."""
+    d = grid.dim
+    vmin = 1e-12 * grid.h**d
+    Lc = jnp.einsum("...ia,...jib->...jab", corners(v, d), dg.A)
+    return _safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)

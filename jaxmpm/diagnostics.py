@@ -1,0 +1,75 @@
+"""Diagnostics of a State: mass, momentum and energy per phase and in total (SI units).
+
+All functions are pure and jit/vmap/grad-compatible; `summary` returns host floats.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from jaxmpm.materials.models import MODELS
+from jaxmpm.state import phase_slices
+
+
+def total_mass(state):
+    """kg."""
+    return jnp.sum(state.mass)
+
+
+def momentum(state):
+    """(d,) total linear momentum, kg m/s."""
+    return jnp.sum(state.mass[:, None] * state.v, axis=0)
+
+
+def kinetic_energy(state):
+    """J (per unit length in 2D, per unit area in 1D)."""
+    return 0.5 * jnp.sum(state.mass * jnp.sum(state.v**2, axis=-1))
+
+
+def internal_energy(state):
+    """sum_p m_p e_p, J: the work done on the particles by their stress (strain energy, heat)."""
+    return jnp.sum(state.mass * state.energy)
+
+
+def gravitational_energy(state, gravity):
+    """- sum_p m_p g . x_p, J (zero at the origin)."""
+    return -jnp.sum(state.mass * (state.x @ gravity))
+
+
+def strain_energy(scene, params, state):
+    """Elastic energy from F for phases whose model defines it (else from the energy integral), J."""
+    total = 0.0
+    for p, sl in zip(scene.phases, phase_slices(scene)):
+        model = MODELS[scene.material(p).model]
+        if model.strain_energy is not None:
+            V0 = state.mass[sl] / params.phases[p.name]["rho0"]
+            total = total + jnp.sum(V0 * model.strain_energy(params.phases[p.name], state.F[sl]))
+        else:
+            total = total + jnp.sum(state.mass[sl] * state.energy[sl])
+    return total
+
+
+def total_energy(scene, params, state):
+    """Kinetic + internal (+ gravitational where the scene has gravity), J."""
+    e = kinetic_energy(state) + internal_energy(state)
+    if scene.gravity is not None:
+        e = e + gravitational_energy(state, params.gravity)
+    return e
+
+
+def per_phase(scene, state):
+    """{phase: {mass, momentum, kinetic, internal}} as arrays."""
+    out = {}
+    for p, sl in zip(scene.phases, phase_slices(scene)):
+        m, v = state.mass[sl], state.v[sl]
+        out[p.name] = {"mass": jnp.sum(m), "momentum": jnp.sum(m[:, None] * v, 0),
+                       "kinetic": 0.5 * jnp.sum(m * jnp.sum(v**2, -1)),
+                       "internal": jnp.sum(m * state.energy[sl])}
+    return out
+
+
+def summary(scene, params, state) -> dict:
+    """Host-side floats: time, mass, momentum, kinetic, internal and total energy."""
+    return {"t": float(state.t), "mass": float(total_mass(state)),
+            "momentum": [float(a) for a in momentum(state)],
+            "kinetic": float(kinetic_energy(state)), "internal": float(internal_energy(state)),
+            "total_energy": float(total_energy(scene, params, state))}

@@ -1,0 +1,81 @@
+"""Elastic models: linear elastic (small strain in F), hypoelastic with the Jaumann rate, and a
+linear fluid p = -K (J - 1). In 1D, E is the bar (uniaxial stress) modulus: sigma = E eps.
+
+Shapes: F, stress, L are (N, d, d); constants are scalars (or broadcastable); SI units.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def lame(c, dim):
+    """Lame constants (lambda, mu) in Pa from E, nu; in 1D (lambda, mu) = (0, E / 2)."""
+    E, nu = c["E"], c["nu"]
+    if dim == 1:
+        return jnp.zeros_like(E), 0.5 * E
+    return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+
+
+def _sym(A):
+    return 0.5 * (A + jnp.swapaxes(A, -1, -2))
+
+
+def _trace(A):
+    return jnp.trace(A, axis1=-2, axis2=-1)
+
+
+def update_F(F, L, dt):
+    """F_{n+1} = (I + dt L) F_n (deformation gradient, forward update)."""
+    eye = jnp.eye(F.shape[-1], dtype=F.dtype)
+    return jnp.matmul(eye + dt * L, F)
+
+
+def linear_elastic_stress(c, F):
+    """sigma = lambda tr(eps) I + 2 mu eps, eps = sym(F) - I (small strain)."""
+    d = F.shape[-1]
+    lam, mu = lame(c, d)
+    eye = jnp.eye(d, dtype=F.dtype)
+    eps = _sym(F) - eye
+    return lam * _trace(eps)[..., None, None] * eye + 2 * mu * eps
+
+
+def linear_elastic_update(c, F, stress, L, dt):
+    F = update_F(F, L, dt)
+    return F, linear_elastic_stress(c, F)
+
+
+def linear_elastic_energy(c, F):
+    """W = lambda/2 tr(eps)^2 + mu eps:eps per reference volume (J/m^3)."""
+    d = F.shape[-1]
+    lam, mu = lame(c, d)
+    eps = _sym(F) - jnp.eye(d, dtype=F.dtype)
+    return 0.5 * lam * _trace(eps) ** 2 + mu * jnp.sum(eps * eps, axis=(-1, -2))
+
+
+def hypoelastic_update(c, F, stress, L, dt):
+    """Jaumann rate: d sigma/dt = lambda tr(D) I + 2 mu D + W sigma - sigma W."""
+    d = F.shape[-1]
+    lam, mu = lame(c, d)
+    D = _sym(L)
+    W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
+    eye = jnp.eye(d, dtype=F.dtype)
+    rate = lam * _trace(D)[..., None, None] * eye + 2 * mu * D + W @ stress - stress @ W
+    return update_F(F, L, dt), stress + dt * rate
+
+
+def linear_fluid_update(c, F, stress, L, dt):
+    """p = -K (J - 1), sigma = -p I, J = det F."""
+    F = update_F(F, L, dt)
+    J = jnp.linalg.det(F) if F.shape[-1] > 1 else F[..., 0, 0]
+    eye = jnp.eye(F.shape[-1], dtype=F.dtype)
+    return F, (c["K"] * (J - 1))[..., None, None] * eye
+
+
+def solid_wave_speed(c, rho, dim):
+    """Longitudinal speed sqrt((lambda + 2 mu) / rho); 1D: sqrt(E / rho)."""
+    lam, mu = lame(c, dim)
+    return jnp.sqrt((lam + 2 * mu) / rho)
+
+
+def fluid_wave_speed(c, rho, dim):
+    return jnp.sqrt(c["K"] / rho)

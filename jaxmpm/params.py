@@ -1,0 +1,98 @@
+"""Params: the numbers of the model, a pytree of arrays (traced, differentiable, vmap-able).
+
+    params.phases[phase_name][constant]   material constants of each phase (SI; see Material)
+    params.gravity                        (d,) gravity acceleration, m/s^2 (read only if the scene has gravity)
+    params.gravity_ramp                   () s, gravity ramp time (smooth ramp from 0; 0 = none)
+    params.damping                        () 1/s, nodal mass-proportional damping (only if the scene has damping)
+    params.body_force[phase_name]         (d,) m/s^2 body acceleration (only if scene.body_force)
+    params.cfl                            () Courant number in (0, 1]
+
+Edit with `dataclasses.replace` or `Params.with_constant`.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.materials.models import MODELS, check_constant
+
+
+@dataclass(frozen=True)
+class Params:
+    phases: dict
+    gravity: jax.Array
+    gravity_ramp: jax.Array
+    damping: jax.Array
+    body_force: dict
+    cfl: jax.Array
+
+    def with_constant(self, phase: str, name: str, value) -> "Params":
+        """A copy with params.phases[phase][name] = value."""
+        if phase not in self.phases:
+            raise ValueError(f"params.phases[{phase!r}] is unknown: phases are {list(self.phases)}")
+        if name not in self.phases[phase]:
+            raise ValueError(f"params.phases[{phase!r}][{name!r}] is unknown: constants are {list(self.phases[phase])}")
+        phases = {k: dict(v) for k, v in self.phases.items()}
+        phases[phase][name] = jnp.asarray(value, dtype=jnp.result_type(self.phases[phase][name]))
+        return dataclasses.replace(self, phases=phases)
+
+
+jax.tree_util.register_dataclass(
+    Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl"], meta_fields=[])
+
+
+def default_params(scene, dtype=None) -> Params:
+    """Params holding the scene's numbers. dtype: float64 when jax_enable_x64 is on, else float32."""
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    f = lambda v: jnp.asarray(v, dtype=dtype)
+    d = scene.dim
+    phases = {p.name: {k: f(v) for k, v in scene.material(p).constants} for p in scene.phases}
+    return Params(
+        phases=phases,
+        gravity=f(scene.gravity if scene.gravity is not None else np.zeros(d)),
+        gravity_ramp=f(scene.gravity_ramp),
+        damping=f(scene.damping if scene.damping is not None else 0.0),
+        body_force={p.name: f(np.zeros(d)) for p in scene.phases},
+        cfl=f(scene.cfl),
+    )
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_params(scene, params: Params) -> None:
+    """Raise ValueError naming the field if a concrete Param is out of range or does not fit the
+    scene. Traced values (under jit/grad/vmap) are skipped: this is a host-side check."""
+    if not isinstance(params, Params):
+        raise ValueError(f"params = {type(params).__name__} is invalid: allowed a jaxmpm.Params")
+    names = scene.phase_names()
+    if set(params.phases) != set(names):
+        raise ValueError(f"params.phases has phases {sorted(params.phases)}: the scene has {sorted(names)}")
+    for p in scene.phases:
+        model = scene.material(p).model
+        for k, v in params.phases[p.name].items():
+            if k not in MODELS[model].constants:
+                raise ValueError(f"params.phases[{p.name!r}][{k!r}] is not a constant of model {model!r}")
+            if _is_concrete(v):
+                for x in np.atleast_1d(np.asarray(v, dtype=float)):
+                    check_constant(model, k, float(x), f"params.phases[{p.name!r}][{k!r}]")
+    if _is_concrete(params.cfl):
+        for x in np.atleast_1d(np.asarray(params.cfl, dtype=float)):
+            if not 0 < x <= 1:
+                raise ValueError(f"params.cfl = {x!r} is invalid: allowed (0, 1]")
+    unused = []
+    if scene.gravity is None and _is_concrete(params.gravity) and np.any(np.asarray(params.gravity) != 0):
+        unused.append("gravity (the scene has no gravity effect)")
+    if scene.damping is None and _is_concrete(params.damping) and np.any(np.asarray(params.damping) != 0):
+        unused.append("damping (the scene has no damping effect)")
+    if not scene.body_force and any(_is_concrete(b) and np.any(np.asarray(b) != 0) for b in params.body_force.values()):
+        unused.append("body_force (the scene has body_force = false)")
+    if unused:
+        raise ValueError(f"params.{unused[0]}: set it in the scene to switch the effect on")
+    if _is_concrete(params.damping) and np.any(np.asarray(params.damping) < 0):
+        raise ValueError(f"params.damping = {params.damping} is invalid: allowed >= 0 1/s")

@@ -1,0 +1,356 @@
+"""Scene: the static description of a simulation (what is simulated).
+
+A `Scene` fixes the shape of the computation: dimension, grid, phases (material model kinds,
+geometry, particle counts), velocity fields, effects, boundary conditions, shape function and
+transfer scheme. It is frozen, hashable and validated when built: every error is a `ValueError`
+that names the field, the value and the allowed range. The numbers a user may calibrate or batch
+(moduli, densities, gravity, CFL, ...) are copied from the scene into `Params` by
+`jaxmpm.default_params`; the scene keeps only their defaults. SI units throughout.
+
+Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written back to TOML
+(`scene_to_toml`) so every output file says how to reproduce it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from jaxmpm.materials import Material, resolve_material
+
+SHAPES = ("linear", "ddmp", "bspline2")
+TRANSFERS = ("seed", "apic")
+BOUNDARIES = ("free", "slip", "fixed")
+AXES = "xyz"
+
+
+def _fail(name: str, value: Any, allowed: str) -> None:
+    raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
+
+
+def _floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = (value,)
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        _fail(name, value, "a list of numbers")
+    if any(isinstance(v, bool) for v in value):
+        _fail(name, value, "a list of numbers")
+    if n is not None and len(out) != n:
+        _fail(name, value, f"a list of {n} numbers (one per axis)")
+    if not all(math.isfinite(v) for v in out):
+        _fail(name, value, "finite numbers")
+    return out
+
+
+# ----------------------------------------------------------------------------------- geometry
+@dataclass(frozen=True)
+class Box:
+    """Axis-aligned box [lo, hi] (m)."""
+
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+
+    def __post_init__(self):
+        object.__setattr__(self, "lo", _floats("geometry.lo", self.lo))
+        object.__setattr__(self, "hi", _floats("geometry.hi", self.hi, len(self.lo)))
+        for d, (a, b) in enumerate(zip(self.lo, self.hi)):
+            if not b > a:
+                _fail(f"geometry.hi[{d}]", b, f"> geometry.lo[{d}] = {a}")
+
+    def contains(self, x):
+        import numpy as np
+
+        return np.all((x >= np.asarray(self.lo)) & (x < np.asarray(self.hi)), axis=-1)
+
+    def to_dict(self):
+        return {"type": "box", "lo": list(self.lo), "hi": list(self.hi)}
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Ball of radius `radius` (m) around `center` (a disk in 2D, a segment in 1D)."""
+
+    center: tuple[float, ...]
+    radius: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _floats("geometry.center", self.center))
+        r = _floats("geometry.radius", self.radius, 1)[0]
+        if not r > 0:
+            _fail("geometry.radius", r, "> 0 m")
+        object.__setattr__(self, "radius", r)
+
+    @property
+    def lo(self):
+        return tuple(c - self.radius for c in self.center)
+
+    @property
+    def hi(self):
+        return tuple(c + self.radius for c in self.center)
+
+    def contains(self, x):
+        import numpy as np
+
+        return np.sum((x - np.asarray(self.center)) ** 2, axis=-1) < self.radius**2
+
+    def to_dict(self):
+        return {"type": "sphere", "center": list(self.center), "radius": self.radius}
+
+
+GEOMETRIES = {"box": Box, "sphere": Sphere}
+
+
+def geometry_from_dict(d: Mapping, where: str):
+    if not isinstance(d, Mapping):
+        _fail(where, d, "a table with key 'type' (box | sphere)")
+    d = dict(d)
+    kind = d.pop("type", None)
+    if kind not in GEOMETRIES:
+        _fail(f"{where}.type", kind, " | ".join(GEOMETRIES))
+    cls = GEOMETRIES[kind]
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = set(d) - set(names)
+    if unknown:
+        _fail(f"{where}.{sorted(unknown)[0]}", d[sorted(unknown)[0]], f"keys {names} for type {kind!r}")
+    missing = set(names) - set(d)
+    if missing:
+        raise ValueError(f"{where}.{sorted(missing)[0]} is missing: a {kind} needs {names}")
+    try:
+        return cls(**d)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
+# ----------------------------------------------------------------------------------- grid
+@dataclass(frozen=True)
+class Grid:
+    """Fixed Cartesian grid: `cells` per axis, spacing `h` (m), lower corner `origin` (m).
+
+    Nodes per axis are cells + 1; the domain is [origin, origin + cells * h].
+    """
+
+    cells: tuple[int, ...]
+    h: float
+    origin: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        cells = self.cells
+        if isinstance(cells, int):
+            cells = (cells,)
+        try:
+            ok = all(isinstance(c, int) and not isinstance(c, bool) for c in cells)
+        except TypeError:
+            ok = False
+        if not ok or not 1 <= len(tuple(cells)) <= 3:
+            _fail("grid.cells", self.cells, "a list of 1 to 3 integers")
+        cells = tuple(cells)
+        for d, c in enumerate(cells):
+            if c < 2:
+                _fail(f"grid.cells[{d}]", c, ">= 2")
+        object.__setattr__(self, "cells", cells)
+        h = _floats("grid.h", self.h, 1)[0]
+        if not h > 0:
+            _fail("grid.h", h, "> 0 m")
+        object.__setattr__(self, "h", h)
+        origin = (0.0,) * len(cells) if self.origin is None else self.origin
+        object.__setattr__(self, "origin", _floats("grid.origin", origin, len(cells)))
+
+    @property
+    def dim(self) -> int:
+        return len(self.cells)
+
+    @property
+    def nodes(self) -> tuple[int, ...]:
+        return tuple(c + 1 for c in self.cells)
+
+    @property
+    def n_nodes(self) -> int:
+        return math.prod(self.nodes)
+
+    @property
+    def hi(self) -> tuple[float, ...]:
+        return tuple(o + c * self.h for o, c in zip(self.origin, self.cells))
+
+    def to_dict(self):
+        return {"cells": list(self.cells), "h": self.h, "origin": list(self.origin)}
+
+
+# ----------------------------------------------------------------------------------- phases
+@dataclass(frozen=True)
+class Phase:
+    """One material (phase) of the scene.
+
+    name: unique label. material: a library key (see `jaxmpm.materials.known_keys()`), a key of the
+    scene's own `materials`, or a `Material`. geometry: Box or Sphere. velocity: initial velocity
+    (m/s). field: index of the velocity field the phase moves with (phases in one field share the
+    grid velocity). ppc: particles per cell per axis.
+    """
+
+    name: str
+    material: Any
+    geometry: Any
+    velocity: tuple[float, ...] | None = None
+    field: int = 0
+    ppc: int = 2
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.isidentifier():
+            _fail("phase.name", self.name, "an identifier (letters, digits, underscore)")
+        if not isinstance(self.geometry, tuple(GEOMETRIES.values())):
+            _fail(f"phase.{self.name}.geometry", self.geometry, "Box or Sphere")
+        dim = len(self.geometry.lo)
+        v = (0.0,) * dim if self.velocity is None else self.velocity
+        object.__setattr__(self, "velocity", _floats(f"phase.{self.name}.velocity", v, dim))
+        if not isinstance(self.field, int) or isinstance(self.field, bool) or self.field < 0:
+            _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
+        if not isinstance(self.ppc, int) or isinstance(self.ppc, bool) or not 1 <= self.ppc <= 8:
+            _fail(f"phase.{self.name}.ppc", self.ppc, "an integer in [1, 8]")
+
+    def to_dict(self):
+        mat = self.material if isinstance(self.material, str) else self.material.key
+        return {"name": self.name, "material": mat, "field": self.field, "ppc": self.ppc,
+                "velocity": list(self.velocity), "geometry": self.geometry.to_dict()}
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero) or
+    'fixed' (velocity zero). `layers` is the number of node layers a condition applies to."""
+
+    faces: tuple[tuple[str, str], ...] = ()
+    layers: int = 1
+
+    def __post_init__(self):
+        faces = dict(self.faces)
+        for k, v in faces.items():
+            if k not in FACE_NAMES:
+                _fail(f"boundary.{k}", v, f"face names {FACE_NAMES}")
+            if v not in BOUNDARIES:
+                _fail(f"boundary.{k}", v, " | ".join(BOUNDARIES))
+        object.__setattr__(self, "faces", tuple(sorted(faces.items())))
+        if not isinstance(self.layers, int) or isinstance(self.layers, bool) or not 1 <= self.layers <= 4:
+            _fail("boundary.layers", self.layers, "an integer in [1, 4]")
+
+    def kind(self, axis: int, side: str) -> str:
+        return dict(self.faces).get(f"{AXES[axis]}_{side}", "free")
+
+
+FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
+
+
+# ----------------------------------------------------------------------------------- scene
+@dataclass(frozen=True)
+class Scene:
+    """Static description of a simulation. Hashable; validated at construction.
+
+    Fields:
+      grid: Grid. phases: tuple of Phase. materials: user materials by key (tuple of Material).
+      shape: 'ddmp' (default; linear hat with the DDMP gradient, PHYSICS 2.2), 'linear' (standard MPM)
+        or 'bspline2' (quadratic B-spline). transfer: 'seed' (PHYSICS 2.1 step 4) or 'apic'
+        (affine PIC / MLS, requires 'bspline2').
+      gravity: gravity acceleration (m/s^2, one per axis), or None for no gravity term.
+      gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
+      damping: mass-proportional nodal damping rate (1/s), or None for no damping term.
+      body_force: True to give each phase a constant body acceleration Param (m/s^2).
+      boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
+    """
+
+    grid: Grid
+    phases: tuple[Phase, ...]
+    materials: tuple[Material, ...] = ()
+    shape: str = "ddmp"
+    transfer: str = "seed"
+    gravity: tuple[float, ...] | None = None
+    gravity_ramp: float = 0.0
+    damping: float | None = None
+    body_force: bool = False
+    boundary: Boundary = field(default_factory=Boundary)
+    cfl: float = 0.3
+    t_end: float = 1e-3
+    n_out: int = 10
+    name: str = "scene"
+    description: str = ""
+
+    def __post_init__(self):
+        if not isinstance(self.grid, Grid):
+            _fail("grid", self.grid, "a Grid")
+        dim = self.grid.dim
+        phases = tuple(self.phases)
+        if not phases:
+            _fail("phase", phases, "at least one [[phase]]")
+        object.__setattr__(self, "phases", phases)
+        object.__setattr__(self, "materials", tuple(self.materials))
+        names = [p.name for p in phases]
+        for n in names:
+            if names.count(n) > 1:
+                _fail("phase.name", n, "unique names (two phases share it)")
+        for p in phases:
+            if len(p.geometry.lo) != dim:
+                _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(), f"{dim} coordinates per point (grid is {dim}D)")
+            for d in range(dim):
+                lo, hi = self.grid.origin[d], self.grid.hi[d]
+                if p.geometry.lo[d] < lo - 1e-12 * abs(hi - lo) or p.geometry.hi[d] > hi + 1e-12 * abs(hi - lo):
+                    _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(),
+                          f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)")
+        fields = sorted({p.field for p in phases})
+        if fields != list(range(len(fields))):
+            bad = [p for p in phases if p.field >= len(fields)][0]
+            _fail(f"phase.{bad.name}.field", bad.field, f"fields numbered 0..{len(fields) - 1} without gaps")
+        keys = [m.key for m in self.materials]
+        for k in keys:
+            if keys.count(k) > 1:
+                _fail("materials", k, "unique material keys")
+        for p in phases:  # resolves now: an unknown key fails here, listing the known ones
+            resolve_material(p.material, self.materials, f"phase.{p.name}.material")
+        if self.shape not in SHAPES:
+            _fail("shape", self.shape, " | ".join(SHAPES))
+        if self.transfer not in TRANSFERS:
+            _fail("transfer", self.transfer, " | ".join(TRANSFERS))
+        if self.transfer == "apic" and self.shape != "bspline2":
+            _fail("transfer", self.transfer, "'apic' only with shape = 'bspline2'")
+        if self.gravity is not None:
+            object.__setattr__(self, "gravity", _floats("effects.gravity", self.gravity, dim))
+        ramp = _floats("effects.gravity_ramp", self.gravity_ramp, 1)[0]
+        if ramp < 0:
+            _fail("effects.gravity_ramp", ramp, ">= 0 s")
+        object.__setattr__(self, "gravity_ramp", ramp)
+        if self.damping is not None:
+            c = _floats("effects.damping", self.damping, 1)[0]
+            if c < 0:
+                _fail("effects.damping", c, ">= 0 1/s")
+            object.__setattr__(self, "damping", c)
+        if not isinstance(self.body_force, bool):
+            _fail("effects.body_force", self.body_force, "true | false")
+        if not isinstance(self.boundary, Boundary):
+            _fail("boundary", self.boundary, "a Boundary")
+        cfl = _floats("cfl", self.cfl, 1)[0]
+        if not 0 < cfl <= 1:
+            _fail("cfl", cfl, "(0, 1]")
+        object.__setattr__(self, "cfl", cfl)
+        t_end = _floats("t_end", self.t_end, 1)[0]
+        if not t_end > 0:
+            _fail("t_end", t_end, "> 0 s")
+        object.__setattr__(self, "t_end", t_end)
+        if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
+            _fail("output.n_out", self.n_out, "an integer >= 1")
+
+    # ------------------------------------------------------------------ derived static facts
+    @property
+    def dim(self) -> int:
+        return self.grid.dim
+
+    @property
+    def n_fields(self) -> int:
+        return 1 + max(p.field for p in self.phases)
+
+    def material(self, phase: Phase) -> Material:
+        return resolve_material(phase.material, self.materials, f"phase.{phase.name}.material")
+
+    def phase_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.phases)
+
+    def replace(self, **changes) -> "Scene":
+        return dataclasses.replace(self, **changes)

@@ -1,0 +1,24 @@
+"""Built-in scenes. Each builder takes keyword options (e.g. `resolution`) and returns a Scene;
+its docstring states the source, geometry, phases, effects and what it measures."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from jaxmpm.scenes import basic
+
+
+@dataclass(frozen=True)
+class Builtin:
+    build: Callable
+    summary: str
+
+
+BUILTINS = {
+    "elastic_impact": Builtin(basic.elastic_impact, "two elastic disks collide head-on (2D plane strain; the default scene)"),
+    "vibrating_bar": Builtin(basic.vibrating_bar, "1D fixed-free elastic bar in its first mode (exact solution; Bardenhagen 2002)"),
+    "self_weight_column": Builtin(basic.self_weight_column, "1D soft column settling under its own weight (exact static stress; cell crossing)"),
+    "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
+}
+
+DEFAULT_SCENE = "elastic_impact"

@@ -1,0 +1,82 @@
+"""Shape functions at the particles: node indices, weights and weight gradients.
+
+Tensor products of 1D functions on the grid (PHYSICS 2.1 stage 1):
+  linear hat (2 nodes per axis; standard MPM and the base of DDMP) and
+  quadratic B-spline (3 nodes per axis; with APIC/MLS).
+The DDMP blend beta (PHYSICS 2.2, the bubble beta = prod_d 4 xi_d (1 - xi_d)) is here too.
+
+Shapes: x (N, d) m; node (N, S) flat node index; w (N, S); dw (N, S, d) 1/m; S = width^d.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.state import stencil_offsets
+
+
+@dataclass(frozen=True)
+class Stencil:
+    node: jax.Array   # (N, S) int32 flat node index
+    w: jax.Array      # (N, S) weight S_n(x_p)
+    dw: jax.Array     # (N, S, d) gradient grad S_n(x_p), 1/m
+    cell: jax.Array   # (N,) int32 flat index of the cell holding the particle
+    xi: jax.Array     # (N, d) position inside that cell (linear) or past the stencil base (bspline2), in cells
+    dpos: jax.Array   # (N, S, d) x_n - x_p, m
+
+
+def _node_strides(nodes):
+    return np.array([int(np.prod(nodes[k + 1:])) for k in range(len(nodes))], dtype=np.int32)
+
+
+def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
+    d, h = grid.dim, grid.h
+    xi = (x - jnp.asarray(grid.origin, x.dtype)) / h
+    base = jnp.clip(jnp.floor(xi - base_shift).astype(jnp.int32), lo_clip, np.asarray(grid.cells) - hi_clip)
+    fx = xi - base
+    w1, dw1 = w1d(fx), dw1d(fx) / h          # (N, width, d)
+    off = stencil_offsets(d, width)           # (S, d)
+    wk = jnp.stack([w1[:, off[:, k], k] for k in range(d)], -1)    # (N, S, d)
+    dk = jnp.stack([dw1[:, off[:, k], k] for k in range(d)], -1)
+    w = jnp.prod(wk, -1)
+    grads = []
+    for k in range(d):
+        g = dk[..., k]
+        for e in range(d):
+            if e != k:
+                g = g * wk[..., e]
+        grads.append(g)
+    dw = jnp.stack(grads, -1)
+    strides = jnp.asarray(_node_strides(grid.nodes))
+    node = jnp.sum((base[:, None, :] + jnp.asarray(off)[None]) * strides, -1)
+    cell_strides = jnp.asarray(_node_strides(grid.cells))
+    cell = jnp.sum(jnp.clip(jnp.floor(xi).astype(jnp.int32), 0, np.asarray(grid.cells) - 1) * cell_strides, -1)
+    dpos = (jnp.asarray(off, x.dtype)[None] - fx[:, None, :]) * h
+    return Stencil(node=node, w=w, dw=dw, cell=cell, xi=fx, dpos=dpos)
+
+
+def linear_stencil(grid, x) -> Stencil:
+    """Linear hat S_n(x) = prod_d (1 - |x_d - x_n,d| / h)."""
+    w1d = lambda f: jnp.stack([1 - f, f], 1)
+    dw1d = lambda f: jnp.stack([-jnp.ones_like(f), jnp.ones_like(f)], 1)
+    return _tensor(grid, x, 2, 0.0, w1d, dw1d, 0, 1)
+
+
+def bspline2_stencil(grid, x) -> Stencil:
+    """Quadratic B-spline (3 nodes per axis, base = floor(x / h - 1/2))."""
+    w1d = lambda f: jnp.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1) ** 2, 0.5 * (f - 0.5) ** 2], 1)
+    dw1d = lambda f: jnp.stack([f - 1.5, -2 * (f - 1), f - 0.5], 1)
+    return _tensor(grid, x, 3, 0.5, w1d, dw1d, 0, 2)
+
+
+def stencil(scene, x) -> Stencil:
+    """The scene's shape functions at x (DDMP uses the linear hat)."""
+    return bspline2_stencil(scene.grid, x) if scene.shape == "bspline2" else linear_stencil(scene.grid, x)
+
+
+def ddmp_beta(xi):
+    """(E9) blend beta = prod_d 4 xi_d (1 - xi_d): 1 at a cell centre, 0 on cell faces. xi (N, d)."""
+    return jnp.prod(4 * xi * (1 - xi), axis=-1)

@@ -1,0 +1,170 @@
+"""simulate(): run a scene to t_end with outputs, by `lax.scan` in chunks.
+
+Two drivers share one step:
+  * host-driven (concrete inputs, no `n_steps`): a Python loop over jitted chunks of scan steps,
+    adaptive (chunks repeat until each output time is reached), with a progress bar, a check for
+    non-finite values after every chunk, and no wasted compilation;
+  * fixed-length (inside jit / grad / vmap, or when `n_steps` is given): one scan of `n_steps`
+    steps split evenly over the outputs; dt is clipped at each output time and steps after it are
+    identities, so the run is reverse-differentiable. `checkpoint=True` recomputes each step in the
+    backward pass (jax.checkpoint) to bound memory on long runs.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.params import check_params
+from jaxmpm.state import phase_slices
+from jaxmpm.step import cfl_time_step, make_step
+
+
+def _traced(tree) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
+
+
+def cfl_limit(scene, params, state) -> float:
+    """The largest stable dt (s) at `state` for CFL = 1: h / max_p (c_p + |v_p|)."""
+    return float(cfl_time_step(scene, params, state, cfl=1.0))
+
+
+def check_dt(scene, params, state, dt) -> None:
+    """ValueError if a user-given dt exceeds the CFL limit params.cfl * h / max(c + |v|)."""
+    limit = float(cfl_time_step(scene, params, state))
+    if not dt > 0:
+        raise ValueError(f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})")
+    if dt > limit * (1 + 1e-12):
+        raise ValueError(f"dt = {dt:.6g} s is above the CFL limit: allowed (0, {limit:.6g}] s "
+                         f"(cfl = {float(params.cfl):g}, h = {scene.grid.h:g} m)")
+
+
+def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
+    """Number of scan steps that reach t_end: (t_end - t) / dt with a safety margin for the CFL
+    step shrinking during the run. Call it outside jit/grad/vmap and pass it as `n_steps`."""
+    span = float(t_end) - float(state.t)
+    if dt is not None:
+        return max(1, math.ceil(span / float(dt) * (1 + 1e-9)))
+    return max(1, math.ceil(safety * span / float(cfl_time_step(scene, params, state))))
+
+
+def _stack(states):
+    return jax.tree.map(lambda *a: jnp.stack(a), *states)
+
+
+@functools.lru_cache(maxsize=32)
+def _chunk_fn(scene, length):
+    step = make_step(scene)
+
+    @jax.jit
+    def run(params, state, t_stop, dt):
+        def body(s, _):
+            return step(params, s, t_stop, dt), None
+        return jax.lax.scan(body, state, None, length=length)[0]
+
+    return run
+
+
+@functools.lru_cache(maxsize=32)
+def _fixed_fn(scene, n_per_out, n_out, checkpoint):
+    step = make_step(scene)
+    if checkpoint:
+        step = jax.checkpoint(step)
+
+    @jax.jit
+    def run(params, state, times, dt):
+        def inner(s, t_stop):
+            def body(s2, _):
+                return step(params, s2, t_stop, dt), None
+            s = jax.lax.scan(body, s, None, length=n_per_out)[0]
+            return s, s
+        return jax.lax.scan(inner, state, times)
+
+    return run
+
+
+def find_nonfinite(scene, state):
+    """None if every particle value is finite, else a message naming field, phase and particle."""
+    for name in ("x", "v", "stress", "volume", "energy"):
+        a = np.asarray(getattr(state, name))
+        bad = ~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            phase = next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
+            return f"non-finite {name} at t = {float(state.t):.6g} s: phase {phase!r}, particle {i}"
+    return None
+
+
+def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
+             progress=True, checkpoint=False, chunk=None):
+    """Advance `state` to t_end (s) and return (final, history).
+
+    history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
+    first), as a State whose arrays have a leading axis of length n_out + 1.
+    dt: a fixed time step (s), checked against the CFL limit; default: the CFL step each step.
+    n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
+      host cannot plan (use `plan_steps` outside). progress: tqdm bar (host driver only).
+    checkpoint: jax.checkpoint each step (fixed-length driver). chunk: steps per jitted chunk.
+    """
+    t_end = scene.t_end if t_end is None else float(t_end)
+    n_out = scene.n_out if n_out is None else int(n_out)
+    if n_out < 1:
+        raise ValueError(f"n_out = {n_out} is invalid: allowed an integer >= 1")
+    traced = _traced((params, state))
+    if not traced:
+        check_params(scene, params)
+        if not t_end > float(state.t):
+            raise ValueError(f"t_end = {t_end!r} is invalid: allowed > state.t = {float(state.t)} s")
+        if dt is not None:
+            check_dt(scene, params, state, float(dt))
+    dtype = state.t.dtype
+    dt_arr = None if dt is None else jnp.asarray(dt, dtype)
+    if traced or n_steps is not None:
+        if n_steps is None:
+            raise ValueError("n_steps is required inside jit/grad/vmap: compute it outside with "
+                             "jaxmpm.plan_steps(scene, params, state, t_end) and pass n_steps=...")
+        n_per_out = max(1, math.ceil(int(n_steps) / n_out))
+        t0 = state.t
+        times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
+        final, hist = _fixed_fn(scene, n_per_out, n_out, bool(checkpoint))(params, state, times, dt_arr)
+        history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
+        return final, history
+    return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk)
+
+
+def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk):
+    t0 = float(state.t)
+    times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
+    if chunk is None:
+        est = plan_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
+        chunk = int(min(max(est, 1), 1000))
+    run = _chunk_fn(scene, int(chunk))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=t_end - t0, unit="s", desc=scene.name, bar_format="{l_bar}{bar}| t={n:.3g}/{total:.3g} s [{elapsed}<{remaining}]")
+    history, n_chunks = [state], 0
+    tol = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(t_end), t_end - t0)
+    try:
+        for t_stop in times:
+            stop = jnp.asarray(t_stop, state.t.dtype)
+            while float(state.t) < t_stop - tol:
+                t_before = float(state.t)
+                state = run(params, state, stop, dt)
+                n_chunks += 1
+                msg = find_nonfinite(scene, state)
+                if msg:
+                    raise FloatingPointError(f"{scene.name}: {msg} (chunk {n_chunks} of {chunk} steps)")
+                if not float(state.t) > t_before:
+                    raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
+                                             f"(dt = 0: a wave speed is non-finite or infinite)")
+                if bar is not None:
+                    bar.update(float(state.t) - bar.n)
+            history.append(state)
+    finally:
+        if bar is not None:
+            bar.close()
+    return state, _stack(history)
