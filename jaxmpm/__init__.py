@@ -7,6 +7,7 @@
     final, history = jaxmpm.simulate(scene, params, state, t_end=..., n_out=10)
 """
 from jaxmpm import diagnostics as diagnostics
+from jaxmpm import io as io
 from jaxmpm.materials import Material as Material
 from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params
 from jaxmpm.scene import Boundary as Boundary, Box as Box, Grid as Grid, Phase as Phase, Scene as Scene, Sphere as Sphere

@@ -20,7 +20,7 @@ from typing import Any, Mapping
 from jaxmpm.materials import Material, resolve_material
 
 SHAPES = ("linear", "ddmp", "bspline2")
-TRANSFERS = ("seed", "apic")
+TRANSFERS = ("seed", "seed_halfstep", "apic")
 BOUNDARIES = ("free", "slip", "fixed")
 AXES = "xyz"
 
@@ -249,8 +249,10 @@ class Scene:
     Fields:
       grid: Grid. phases: tuple of Phase. materials: user materials by key (tuple of Material).
       shape: 'ddmp' (default; linear hat with the DDMP gradient, PHYSICS 2.2), 'linear' (standard MPM)
-        or 'bspline2' (quadratic B-spline). transfer: 'seed' (PHYSICS 2.1 step 4) or 'apic'
-        (affine PIC / MLS, requires 'bspline2').
+        or 'bspline2' (quadratic B-spline). transfer: 'seed' (PHYSICS 2.1 step 4 with the remap;
+        particles move with the full-step nodal velocity, second order), 'seed_halfstep' (the seed's
+        literal half-step acceleration term in the position update, first order in time) or
+        'apic' (affine PIC / MLS, requires 'bspline2').
       gravity: gravity acceleration (m/s^2, one per axis), or None for no gravity term.
       gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
       damping: mass-proportional nodal damping rate (1/s), or None for no damping term.

@@ -50,7 +50,7 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
                  boundary=Boundary(faces=(("x_lo", "fixed"),)), cfl=cfl, t_end=10.0, n_out=10)
 
 
-def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.3, ppc: int = 2) -> Scene:
+def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, ppc: int = 2) -> Scene:
     """1D soft column under its own weight (Bardenhagen & Kober, CMES 5 (2004) 477 style).
 
     Column L = 1 m, rho = 1 kg/m^3, linear elastic with E chosen so that rho g L / E = `load`

@@ -1,0 +1,341 @@
+"""Output: HDF5 snapshots with an XDMF index for ParaView, PNG plots, and text summaries.
+
+HDF5 layout written by `write` (SI units; every dataset carries a `units` attribute):
+
+    /                    attrs: jaxmpm_version, dtype, dim, n_out (outputs after the first),
+                                n_times, scene_name, phases
+    /scene               the scene as TOML text (`jaxmpm.scene_to_toml`): how to reproduce the run
+    /params/<key path>   each Params leaf, e.g. /params/phases/disk_a/E (only if params given)
+    /t0000, /t0001, ...  one group per output time, attr `time` (s)
+    /tNNNN/<phase>/      attrs: material, field, n_particles
+        x (n, d) m, v (n, d) m/s, volume (n,) m^3, mass (n,) kg (per unit depth in 2D: m^2, kg/m;
+        per unit area in 1D: m, kg/m^2), F (n, d, d) 1,
+        stress (n, d, d) Pa, energy (n,) J/kg; C (n, d, d) 1/s with APIC transfer;
+        eps_ps (n,) 1 and damage (n,) 1 where the State has them;
+        x3 (n, 3) m and v3 (n, 3) m/s: x and v padded with zeros to 3 components (1D, 2D), for XDMF.
+
+The XDMF file beside it (same stem, .xdmf) is a temporal collection of spatial collections, one
+Polyvertex grid per phase, whose data items point into the HDF5 file by relative name: open the
+.xdmf in ParaView (Xdmf3 reader). Files are never overwritten unless asked (`overwrite=True`,
+the command line's `--overwrite`), and are written to a temporary name then renamed, so an
+interrupted write never leaves a half file under the final name.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import uuid
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import h5py
+import jax
+import numpy as np
+
+from jaxmpm.state import State, phase_slices
+
+UNITS = {"x": "m", "v": "m/s", "volume": "m^3", "mass": "kg", "F": "1", "stress": "Pa",
+         "energy": "J/kg", "C": "1/s", "eps_ps": "1", "damage": "1"}
+FIELDS = ("x", "v", "volume", "mass", "F", "stress", "energy")
+OPTIONAL = ("C", "eps_ps", "damage")
+H5_SUFFIXES = (".h5", ".hdf5")
+
+
+def units(name: str, dim: int) -> str:
+    """SI units of a dataset. Volume and mass are per unit depth in 2D (plane strain: m^2, kg/m)
+    and per unit cross-section area in 1D (m, kg/m^2), as in the State."""
+    if name == "volume":
+        return {1: "m", 2: "m^2", 3: "m^3"}[dim]
+    if name == "mass":
+        return {1: "kg/m^2", 2: "kg/m", 3: "kg"}[dim]
+    return UNITS[name]
+
+
+# ----------------------------------------------------------------------------------- safe writing
+def check_new(*paths, overwrite: bool = False) -> None:
+    """Raise FileExistsError naming the first of `paths` that exists, unless overwrite."""
+    if overwrite:
+        return
+    for p in paths:
+        if os.path.lexists(p):
+            raise FileExistsError(f"{os.fspath(p)} exists: refusing to overwrite it "
+                                  "(pass overwrite=True, or --overwrite on the command line)")
+
+
+@contextlib.contextmanager
+def _atomic(path: Path):
+    """Yield a fresh temporary name in path's directory; rename it to `path` on success, delete it
+    on error (the final name never holds a partial file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        yield os.fspath(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def xdmf_path(path) -> Path:
+    """The XDMF file written beside the HDF5 file `path` (same stem, suffix .xdmf)."""
+    return Path(path).with_suffix(".xdmf")
+
+
+def _h5_path(path) -> Path:
+    path = Path(path)
+    if path.suffix not in H5_SUFFIXES:
+        raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in {' or '.join(H5_SUFFIXES)}")
+    return path
+
+
+# ----------------------------------------------------------------------------------- write
+def _host_history(history: State) -> dict:
+    """{field: numpy array with a leading time axis} of a history (or of one State)."""
+    x = np.asarray(history.x)
+    if x.ndim == 2:
+        history = jax.tree.map(lambda a: np.asarray(a)[None], history)
+    elif x.ndim != 3:
+        raise ValueError(f"history.x has shape {x.shape}: allowed (n_times, n_particles, dim) or one State's "
+                         "(n_particles, dim); write each member of a vmapped ensemble separately")
+    out = {"t": np.asarray(history.t).reshape(-1)}
+    for name in FIELDS + OPTIONAL:
+        a = getattr(history, name, None)
+        if a is not None:
+            out[name] = np.asarray(a)
+    return out
+
+
+def _key_path(path) -> str:
+    parts = []
+    for k in path:
+        for attr in ("name", "key", "idx"):
+            if hasattr(k, attr):
+                parts.append(str(getattr(k, attr)))
+                break
+        else:
+            parts.append(str(k))
+    return "/".join(parts)
+
+
+def _pad3(a: np.ndarray) -> np.ndarray:
+    return np.concatenate([a, np.zeros(a.shape[:-1] + (3 - a.shape[-1],), a.dtype)], axis=-1)
+
+
+def write(path, scene, history: State, params=None, overwrite: bool = False) -> tuple[Path, Path]:
+    """Write `history` (a State with a leading time axis, as from `jaxmpm.simulate`; or one State)
+    to the HDF5 file `path` (.h5) and an XDMF index beside it. Returns (h5 path, xdmf path).
+
+    params: optional Params, stored under /params. Raises FileExistsError if either file exists
+    and not `overwrite`; ValueError if the history does not fit the scene.
+    """
+    import jaxmpm
+
+    h5 = _h5_path(path)
+    xdmf = xdmf_path(h5)
+    check_new(h5, xdmf, overwrite=overwrite)
+    data = _host_history(history)
+    slices = phase_slices(scene)
+    n, d = data["x"].shape[1], data["x"].shape[2]
+    if n != slices[-1].stop or d != scene.dim:
+        raise ValueError(f"history has {n} particles in {d}D: the scene {scene.name!r} has "
+                         f"{slices[-1].stop} particles in {scene.dim}D")
+    with _atomic(h5) as tmp:
+        with h5py.File(tmp, "w") as f:
+            f.attrs.update({"jaxmpm_version": jaxmpm.__version__, "dtype": str(data["x"].dtype), "dim": d,
+                            "n_out": len(data["t"]) - 1, "n_times": len(data["t"]), "scene_name": scene.name,
+                            "phases": ",".join(scene.phase_names())})
+            f.create_dataset("scene", data=jaxmpm.scene_to_toml(scene))
+            if params is not None:
+                for kp, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
+                    ds = f.create_dataset(f"params/{_key_path(kp)}", data=np.asarray(leaf))
+                    ds.attrs["key"] = jax.tree_util.keystr(kp)
+            for i, t in enumerate(data["t"]):
+                g = f.create_group(f"t{i:04d}")
+                g.attrs["time"] = t
+                for phase, sl in zip(scene.phases, slices):
+                    pg = g.create_group(phase.name)
+                    pg.attrs.update({"material": phase.to_dict()["material"], "field": phase.field,
+                                     "n_particles": sl.stop - sl.start})
+                    for name in FIELDS + OPTIONAL:
+                        if name in data:
+                            pg.create_dataset(name, data=data[name][i, sl]).attrs["units"] = units(name, d)
+                    if d < 3:
+                        pg.create_dataset("x3", data=_pad3(data["x"][i, sl])).attrs["units"] = "m"
+                        pg.create_dataset("v3", data=_pad3(data["v"][i, sl])).attrs["units"] = "m/s"
+    with _atomic(xdmf) as tmp:
+        Path(tmp).write_text(_xdmf_text(h5.name, scene, data, slices), encoding="utf-8")
+    return h5, xdmf
+
+
+def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
+    d = scene.dim
+    prec = data["x"].dtype.itemsize
+    num = f'NumberType="Float" Precision="{prec}"'
+
+    def item(dims, ref):
+        return f'<DataItem Dimensions="{" ".join(map(str, dims))}" {num} Format="HDF">{h5_name}:{ref}</DataItem>'
+
+    lines = ['<?xml version="1.0" ?>', '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>',
+             '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', '<Domain>',
+             f'<Grid Name={quoteattr(scene.name)} GridType="Collection" CollectionType="Temporal">']
+    for i, t in enumerate(data["t"]):
+        grp = f"/t{i:04d}"
+        lines += [f'  <Grid Name="t{i:04d}" GridType="Collection" CollectionType="Spatial">',
+                  f'    <Time Value="{float(t)!r}"/>']
+        for phase, sl in zip(scene.phases, slices):
+            n, base = sl.stop - sl.start, f"{grp}/{phase.name}"
+            pos = "x3" if d < 3 else "x"
+            vel = "v3" if d < 3 else "v"
+            lines += [f'    <Grid Name="{phase.name}" GridType="Uniform">',
+                      f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1"/>',
+                      f'      <Geometry GeometryType="XYZ">{item((n, 3), f"{base}/{pos}")}</Geometry>',
+                      f'      <Attribute Name="v" AttributeType="Vector" Center="Node">{item((n, 3), f"{base}/{vel}")}</Attribute>']
+            for name in ("volume", "mass", "energy") + tuple(k for k in ("eps_ps", "damage") if k in data):
+                lines.append(f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">'
+                             f'{item((n,), f"{base}/{name}")}</Attribute>')
+            for a in range(d):
+                for b in range(a, d):
+                    slab = (f'<DataItem ItemType="HyperSlab" Dimensions="{n} 1 1" Type="HyperSlab">'
+                            f'<DataItem Dimensions="3 3" Format="XML">0 {a} {b} 1 1 1 {n} 1 1</DataItem>'
+                            f'{item((n, d, d), f"{base}/stress")}</DataItem>')
+                    lines.append(f'      <Attribute Name="stress_{"xyz"[a]}{"xyz"[b]}" AttributeType="Scalar" '
+                                 f'Center="Node">{slab}</Attribute>')
+            lines.append('    </Grid>')
+        lines.append('  </Grid>')
+    lines += ['</Grid>', '</Domain>', '</Xdmf>']
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------------- read
+def _open(path):
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{os.fspath(path)} does not exist")
+    f = h5py.File(path, "r")
+    if "scene" not in f:
+        f.close()
+        raise ValueError(f"{os.fspath(path)} is not a jaxmpm output file: it has no /scene dataset")
+    return f
+
+
+def _times(f) -> list[str]:
+    return sorted(k for k in f if k.startswith("t") and k[1:].isdigit())
+
+
+def read(path):
+    """Read a file written by `write`: returns (scene, history), history a State of numpy arrays
+    with a leading time axis (t (n_times,) s; x (n_times, N, d) m; ...), phases in scene order."""
+    from jaxmpm.scenefile import scene_from_toml
+
+    with _open(path) as f:
+        scene = scene_from_toml(f["scene"].asstr()[()], f"{os.fspath(path)}:/scene")
+        slices = phase_slices(scene)
+        groups = _times(f)
+        t = np.array([f[g].attrs["time"] for g in groups])
+        fields = {}
+        for name in FIELDS + OPTIONAL:
+            if name not in f[groups[0]][scene.phases[0].name]:
+                continue
+            per_time = []
+            for g in groups:
+                parts = [f[g][p.name][name][()] for p in scene.phases]
+                per_time.append(np.concatenate(parts))
+            fields[name] = np.stack(per_time)
+    n = fields["x"].shape[1]
+    if n != slices[-1].stop:
+        raise ValueError(f"{os.fspath(path)} holds {n} particles: its scene samples {slices[-1].stop}")
+    names = {fl.name for fl in dataclasses.fields(State)}
+    history = State(t=t, **{k: v for k, v in fields.items() if k in names})
+    return scene, history
+
+
+# ----------------------------------------------------------------------------------- plots, summaries
+def _energy_units(dim: int) -> str:
+    return {1: "J/m^2", 2: "J/m", 3: "J"}[dim]
+
+
+def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
+    """PNG of one State (no time axis), particles coloured by phase: 2D a scatter of x, 1D velocity
+    and stress against position, 3D the projection on the x-y plane. Returns the path.
+    Raises FileExistsError if `path` exists and not `overwrite`."""
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    check_new(path, overwrite=overwrite)
+    x = np.asarray(state.x)
+    if x.ndim != 2:
+        raise ValueError(f"state.x has shape {x.shape}: plot one State, e.g. jax.tree.map(lambda a: a[-1], history)")
+    v, stress, d = np.asarray(state.v), np.asarray(state.stress), scene.dim
+    lo, hi = np.asarray(scene.grid.origin), np.asarray(scene.grid.hi)
+    colors = [f"C{i % 10}" for i in range(len(scene.phases))]
+    title = f"{scene.name}: t = {float(np.asarray(state.t)):.4g} s"
+    if d == 1:
+        fig = Figure(figsize=(7, 5.5), layout="constrained")
+        ax_v, ax_s = fig.subplots(2, 1, sharex=True)
+        for phase, sl, c in zip(scene.phases, phase_slices(scene), colors):
+            ax_v.plot(x[sl, 0], v[sl, 0], ".", ms=3, color=c, label=phase.name)
+            ax_s.plot(x[sl, 0], stress[sl, 0, 0], ".", ms=3, color=c)
+        ax_v.set_ylabel("velocity v_x (m/s)")
+        ax_s.set_ylabel("stress sigma_xx (Pa)")
+        ax_s.set_xlabel("x (m)")
+        ax_s.set_xlim(lo[0], hi[0])
+        ax_v.legend(loc="best", fontsize="small")
+        ax_v.set_title(title)
+    else:
+        width = 6.5
+        span = hi[:2] - lo[:2]
+        fig = Figure(figsize=(width, max(2.5, min(9.0, width * span[1] / span[0]))), layout="constrained")
+        ax = fig.subplots()
+        spacing = min(scene.grid.h / p.ppc for p in scene.phases)
+        size = max(0.3, (0.75 * width * 72 * spacing / span[0]) ** 2)
+        for phase, sl, c in zip(scene.phases, phase_slices(scene), colors):
+            ax.scatter(x[sl, 0], x[sl, 1], s=size, color=c, label=phase.name, linewidths=0,
+                       alpha=1.0 if d == 2 else 0.4)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend(loc="upper right", fontsize="small", markerscale=max(1.0, 20 / size))
+        ax.set_title(title + ("" if d == 2 else " (projection on x-y)"))
+    with _atomic(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    return path
+
+
+def summary(path) -> str:
+    """Text summary of a file written by `write`: scene, output times, phases with particle counts,
+    total mass and kinetic energy at the first and last output."""
+    from jaxmpm.scenefile import parse_toml
+
+    with _open(path) as f:
+        a = f.attrs
+        spec = parse_toml(f["scene"].asstr()[()])
+        groups = _times(f)
+        if not groups:
+            raise ValueError(f"{os.fspath(path)} holds no output time group /t0000")
+        dim = int(a.get("dim", len(spec["grid"]["cells"])))
+        times = [float(f[g].attrs["time"]) for g in groups]
+        phases = list(f[groups[0]])
+        rows = []
+        for g in (groups[0], groups[-1]):
+            m = sum(float(np.sum(f[g][p]["mass"][()])) for p in phases)
+            ke = sum(float(0.5 * np.sum(f[g][p]["mass"][()] * np.sum(f[g][p]["v"][()] ** 2, -1))) for p in phases)
+            rows.append((m, ke))
+        lines = [f"file:    {os.fspath(path)} (jaxmpm {a.get('jaxmpm_version', '?')}, {a.get('dtype', '?')}, {dim}D)",
+                 f"scene:   {spec.get('name', '?')}" + (f": {spec['description']}" if spec.get("description") else ""),
+                 f"outputs: {len(times)} times from {times[0]:.6g} s to {times[-1]:.6g} s",
+                 "phases:"]
+        for p in phases:
+            pa = f[groups[0]][p].attrs
+            lines.append(f"  {p:<20} material {str(pa.get('material', '?')):<20} field {int(pa.get('field', 0))}  "
+                         f"{f[groups[0]][p]['x'].shape[0]} particles")
+        if "params" in f:
+            lines.append("params:  stored under /params")
+    mass_u = units("mass", dim)
+    lines += [f"{'':<22}{'first':>14}{'last':>14}",
+              f"{'t (s)':<22}{times[0]:>14.6g}{times[-1]:>14.6g}",
+              f"{'total mass (' + mass_u + ')':<22}{rows[0][0]:>14.6g}{rows[1][0]:>14.6g}",
+              f"{'kinetic (' + _energy_units(dim) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
+    return "\n".join(lines)
