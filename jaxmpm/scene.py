@@ -338,6 +338,9 @@ class Scene:
         object.__setattr__(self, "t_end", t_end)
         if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
             _fail("output.n_out", self.n_out, "an integer >= 1")
+        from jaxmpm.state import check_sampling
+
+        check_sampling(self)   # every phase has particles, all inside the grid's usable region
 
     # ------------------------------------------------------------------ derived static facts
     @property

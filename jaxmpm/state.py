@@ -92,7 +92,9 @@ def check_sampling(scene) -> None:
 def init_state(scene, params) -> State:
     """Initial State: particles sampled from each phase's geometry, at rest stress, with the
     phase's initial velocity; mass = rho0 * volume (rho0 from params). dtype follows params."""
-    check_sampling(scene)
+    from jaxmpm.params import check_params
+
+    check_params(scene, params)
     d, h = scene.dim, scene.grid.h
     dtype = jnp.result_type(params.cfl)
     xs, vs, ms, vols = [], [], [], []

@@ -1,0 +1,126 @@
+"""Bad input gets a clear ValueError that names the field and the allowed range."""
+import dataclasses
+
+import pytest
+
+import jaxmpm
+from jaxmpm.materials import Material
+from jaxmpm.scene import Box, Grid, Phase, Scene
+
+MAT = Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3)
+
+
+def _scene(**kw):
+    args = dict(grid=Grid(cells=(10, 10), h=0.1), phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6))),),
+                materials=(MAT,))
+    args.update(kw)
+    return Scene(**args)
+
+
+@pytest.mark.parametrize("rho0", [0.0, -1000.0])
+def test_nonpositive_density(rho0):
+    with pytest.raises(ValueError, match=r"materials\.m\.rho0 = .* allowed \(0, inf\) kg/m\^3"):
+        Material.make("m", "linear_elastic", rho0=rho0, E=1e6, nu=0.3)
+    scene = _scene()
+    params = jaxmpm.default_params(scene).with_constant("block", "rho0", rho0)
+    with pytest.raises(ValueError, match=r"params\.phases\['block'\]\['rho0'\] = .* allowed \(0, inf\)"):
+        jaxmpm.init_state(scene, params)
+
+
+@pytest.mark.parametrize("E", [0.0, -5.0])
+def test_nonpositive_youngs_modulus(E):
+    with pytest.raises(ValueError, match=r"materials\.m\.E = .* allowed \(0, inf\) Pa"):
+        Material.make("m", "linear_elastic", rho0=1.0, E=E, nu=0.3)
+
+
+@pytest.mark.parametrize("nu", [0.5, 0.7, -1.0, -2.0])
+def test_poisson_ratio_outside_range(nu):
+    with pytest.raises(ValueError, match=r"materials\.m\.nu = .* allowed \(-1, 0\.5\)"):
+        Material.make("m", "hypoelastic", rho0=1.0, E=1.0, nu=nu)
+
+
+def test_particle_outside_grid():
+    with pytest.raises(ValueError, match=r"phase\.block\.geometry .* inside the grid: axis x in \[0\.0, 1\.0\]"):
+        _scene(phases=(Phase("block", "m", Box((0.5, 0.2), (1.3, 0.6))),))
+
+
+def test_bspline_particle_in_the_last_half_cell():
+    with pytest.raises(ValueError, match=r"phase\.block\.geometry: particle .* outside the grid's usable region"):
+        _scene(phases=(Phase("block", "m", Box((0.0, 0.2), (0.5, 0.6))),), shape="bspline2")
+
+
+@pytest.mark.parametrize("cfl", [0.0, -0.1, 1.5])
+def test_cfl_outside_range(cfl):
+    with pytest.raises(ValueError, match=r"cfl = .* allowed \(0, 1\]"):
+        _scene(cfl=cfl)
+    scene = _scene()
+    params = dataclasses.replace(jaxmpm.default_params(scene), cfl=jaxmpm.default_params(scene).cfl * 0 + cfl)
+    with pytest.raises(ValueError, match=r"params\.cfl = .* allowed \(0, 1\]"):
+        jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, jaxmpm.default_params(scene)), t_end=1e-3)
+
+
+def test_dt_above_cfl_limit_says_the_limit():
+    scene = _scene()
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    limit = 0.3 * 0.1 / (1e6 * (1 - 0.3) / ((1 + 0.3) * (1 - 0.6)) / 1000.0) ** 0.5
+    with pytest.raises(ValueError, match=rf"dt = .* above the CFL limit: allowed \(0, {limit:.6g}\] s"):
+        jaxmpm.simulate(scene, params, state, t_end=1e-2, dt=2 * limit)
+    jaxmpm.simulate(scene, params, state, t_end=2 * limit, dt=0.99 * limit, progress=False)   # below: runs
+
+
+def test_unknown_material_key_lists_known_ones():
+    with pytest.raises(ValueError, match=r"phase\.block\.material = 'unobtainium' is an unknown material key: known keys are \[.*'al2024'.*'m'.*\]"):
+        _scene(phases=(Phase("block", "unobtainium", Box((0.2, 0.2), (0.6, 0.6))),))
+
+
+SCENE_TOML = """
+name = "t"
+[grid]
+cells = [10, 10]
+h = 0.1
+[materials.m]
+model = "linear_elastic"
+rho0 = 1000.0
+E = 1e6
+nu = 0.3
+[[phase]]
+name = "block"
+material = "m"
+geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }
+"""
+
+
+def test_scene_file_round_trip_and_valid_file():
+    scene = jaxmpm.scenefile.scene_from_toml(SCENE_TOML)
+    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+
+
+@pytest.mark.parametrize("text,match", [
+    (SCENE_TOML.replace("h = 0.1", "h = 0.1\nspacing = 2"), r"grid\.spacing is an unknown key: allowed keys are \['cells', 'h', 'origin'\]"),
+    (SCENE_TOML + "\nfoo = 1", r"phase\[0\]\.foo is an unknown key"),
+    ("colour = 'red'\n" + SCENE_TOML, r"colour is an unknown key: allowed top-level keys"),
+    (SCENE_TOML.replace("nu = 0.3", "nu = 0.3\nyield = 3e6"), r"materials\.m\.yield is not a constant of model 'linear_elastic'"),
+])
+def test_unknown_toml_key(text, match):
+    with pytest.raises(ValueError, match=match):
+        jaxmpm.scenefile.scene_from_toml(text)
+
+
+def test_malformed_toml_names_the_line(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(SCENE_TOML.replace("h = 0.1", "h = = 0.1"))
+    with pytest.raises(ValueError, match=r"bad\.toml: malformed TOML: .*line 5"):
+        jaxmpm.load_scene(str(path))
+
+
+@pytest.mark.parametrize("old,new,match", [
+    ('cells = [10, 10]', 'cells = "ten"', r"grid\.cells = 'ten' is invalid: allowed a list of 1 to 3 integers"),
+    ('h = 0.1', 'h = -0.1', r"grid\.h = -0\.1 is invalid: allowed > 0 m"),
+    ('material = "m"', 'material = 3', r"phase\.block\.material = 3 is invalid"),
+    ('type = "box"', 'type = "cone"', r"phase\.block\.geometry\.type = 'cone' is invalid: allowed box \| sphere"),
+    ('name = "block"', 'name = "a b"', r"phase\.name = 'a b' is invalid"),
+])
+def test_wrong_types_and_values_in_scene_file(old, new, match):
+    with pytest.raises(ValueError, match=match):
+        jaxmpm.scenefile.scene_from_toml(SCENE_TOML.replace(old, new))
