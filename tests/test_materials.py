@@ -1,0 +1,65 @@
+"""Elastic models (linear elastic, hypoelastic with the Jaumann rate) and the material library."""
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxmpm.materials import elastic, known_keys, library_material
+
+C = {"E": jnp.asarray(2.0e9), "nu": jnp.asarray(0.3), "rho0": jnp.asarray(1000.0)}
+
+
+def test_jaumann_rate_rotates_stress_with_a_rigid_spin():
+    """Pure spin L = W (no stretching): the Jaumann stress co-rotates, sigma(t) = R sigma0 R^T."""
+    omega, t_end, n = 2.0, 0.5, 20000
+    W = jnp.array([[0.0, -omega], [omega, 0.0]])[None]
+    s0 = jnp.array([[3.0e6, 1.0e6], [1.0e6, -2.0e6]])[None]
+    dt = t_end / n
+
+    def body(carry, _):
+        F, s = carry
+        return elastic.hypoelastic_update(C, F, s, W, dt), None
+
+    (F, s), _ = jax.lax.scan(body, (jnp.eye(2)[None], s0), None, length=n)
+    a = omega * t_end
+    R = jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
+    np.testing.assert_allclose(np.asarray(s[0]), np.asarray(R @ s0[0] @ R.T), rtol=0, atol=2e-4 * 3e6)
+    assert float(jnp.trace(s[0])) == pytest.approx(float(jnp.trace(s0[0])), rel=1e-9)   # spin keeps invariants
+
+
+def test_hypoelastic_uniaxial_strain_matches_linear_elasticity_at_small_strain():
+    lam, mu = elastic.lame(C, 3)
+    eps, n = 1e-4, 100
+    L = jnp.zeros((1, 3, 3)).at[0, 0, 0].set(eps)   # rate 1e-4 per unit time, integrated over t = 1
+    F, s = jnp.eye(3)[None], jnp.zeros((1, 3, 3))
+    for _ in range(n):
+        F, s = elastic.hypoelastic_update(C, F, s, L, 1.0 / n)
+    np.testing.assert_allclose(float(s[0, 0, 0]), float((lam + 2 * mu) * eps), rtol=1e-3)
+    np.testing.assert_allclose(float(s[0, 1, 1]), float(lam * eps), rtol=1e-3)
+
+
+def test_linear_elastic_stress_is_the_derivative_of_its_energy():
+    F = jnp.eye(3)[None] + 1e-3 * jnp.array([[1.0, 0.3, -0.2], [0.1, -0.5, 0.4], [0.0, 0.2, 0.7]])[None]
+    dW = jax.grad(lambda F: jnp.sum(elastic.linear_elastic_energy(C, F)))(F)
+    np.testing.assert_allclose(np.asarray(dW), np.asarray(elastic.linear_elastic_stress(C, F)), rtol=1e-10)
+
+
+def test_solid_wave_speed_1d_and_3d():
+    rho = jnp.asarray(1000.0)
+    assert float(elastic.solid_wave_speed(C, rho, 1)) == pytest.approx((2.0e9 / 1000.0) ** 0.5)
+    lam, mu = elastic.lame(C, 3)
+    assert float(elastic.solid_wave_speed(C, rho, 3)) == pytest.approx(float(((lam + 2 * mu) / rho) ** 0.5))
+
+
+def test_library_keys_and_package_copy_equals_shared():
+    for key in ("al2024", "al6061", "tungsten_wha", "steel_4340", "copper_ofhc", "air", "water", "concrete"):
+        assert key in known_keys()
+        m = library_material(key)
+        assert m.as_dict()["rho0"] > 0
+    shared = pathlib.Path(__file__).parents[2] / "shared" / "data" / "materials.toml"
+    if not shared.exists():
+        pytest.skip("../shared/data is not beside this checkout")
+    package = pathlib.Path(__file__).parents[1] / "jaxmpm" / "data" / "materials.toml"
+    assert package.read_text() == shared.read_text()
