@@ -27,7 +27,7 @@ import dataclasses
 import os
 import uuid
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
+from xml.sax.saxutils import escape, quoteattr
 
 import h5py
 import jax
@@ -43,8 +43,11 @@ H5_SUFFIXES = (".h5", ".hdf5")
 
 
 def units(name: str, dim: int) -> str:
-    """SI units of a dataset. Volume and mass are per unit depth in 2D (plane strain: m^2, kg/m)
-    and per unit cross-section area in 1D (m, kg/m^2), as in the State."""
+    """SI units of a dataset, or of a total ('kinetic', 'internal', 'total_energy': J). Volumes,
+    masses and energy totals are per unit depth in 2D (plane strain: m^2, kg/m, J/m) and per unit
+    cross-section area in 1D (m, kg/m^2, J/m^2), as in the State."""
+    if name in ("kinetic", "internal", "total_energy"):
+        return {1: "J/m^2", 2: "J/m", 3: "J"}[dim]
     if name == "volume":
         return {1: "m", 2: "m^2", 3: "m^3"}[dim]
     if name == "mass":
@@ -140,8 +143,8 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
     if n != slices[-1].stop or d != scene.dim:
         raise ValueError(f"history has {n} particles in {d}D: the scene {scene.name!r} has "
                          f"{slices[-1].stop} particles in {scene.dim}D")
-    with _atomic(h5) as tmp:
-        with h5py.File(tmp, "w") as f:
+    with _atomic(h5) as tmp_h5, _atomic(xdmf) as tmp_xdmf:  # both renamed only once both are written
+        with h5py.File(tmp_h5, "w") as f:
             f.attrs.update({"jaxmpm_version": jaxmpm.__version__, "dtype": str(data["x"].dtype), "dim": d,
                             "n_out": len(data["t"]) - 1, "n_times": len(data["t"]), "scene_name": scene.name,
                             "phases": ",".join(scene.phase_names())})
@@ -163,18 +166,17 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
                     if d < 3:
                         pg.create_dataset("x3", data=_pad3(data["x"][i, sl])).attrs["units"] = "m"
                         pg.create_dataset("v3", data=_pad3(data["v"][i, sl])).attrs["units"] = "m/s"
-    with _atomic(xdmf) as tmp:
-        Path(tmp).write_text(_xdmf_text(h5.name, scene, data, slices), encoding="utf-8")
+        Path(tmp_xdmf).write_text(_xdmf_text(h5.name, scene, data, slices), encoding="utf-8")
     return h5, xdmf
 
 
 def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
     d = scene.dim
-    prec = data["x"].dtype.itemsize
-    num = f'NumberType="Float" Precision="{prec}"'
 
     def item(dims, ref):
-        return f'<DataItem Dimensions="{" ".join(map(str, dims))}" {num} Format="HDF">{h5_name}:{ref}</DataItem>'
+        prec = data[ref.rsplit("/", 1)[1].rstrip("3")].dtype.itemsize
+        return (f'<DataItem Dimensions="{" ".join(map(str, dims))}" NumberType="Float" Precision="{prec}" '
+                f'Format="HDF">{escape(h5_name)}:{ref}</DataItem>')
 
     lines = ['<?xml version="1.0" ?>', '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>',
              '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', '<Domain>',
@@ -220,7 +222,7 @@ def _open(path):
 
 
 def _times(f) -> list[str]:
-    return sorted(k for k in f if k.startswith("t") and k[1:].isdigit())
+    return sorted((k for k in f if k.startswith("t") and k[1:].isdigit()), key=lambda k: int(k[1:]))
 
 
 def read(path):
@@ -251,10 +253,6 @@ def read(path):
 
 
 # ----------------------------------------------------------------------------------- plots, summaries
-def _energy_units(dim: int) -> str:
-    return {1: "J/m^2", 2: "J/m", 3: "J"}[dim]
-
-
 def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     """PNG of one State (no time axis), particles coloured by phase: 2D a scatter of x, 1D velocity
     and stress against position, 3D the projection on the x-y plane. Returns the path.
@@ -317,7 +315,7 @@ def summary(path) -> str:
             raise ValueError(f"{os.fspath(path)} holds no output time group /t0000")
         dim = int(a.get("dim", len(spec["grid"]["cells"])))
         times = [float(f[g].attrs["time"]) for g in groups]
-        phases = list(f[groups[0]])
+        phases = a["phases"].split(",") if "phases" in a else list(f[groups[0]])
         rows = []
         for g in (groups[0], groups[-1]):
             m = sum(float(np.sum(f[g][p]["mass"][()])) for p in phases)
@@ -337,5 +335,5 @@ def summary(path) -> str:
     lines += [f"{'':<22}{'first':>14}{'last':>14}",
               f"{'t (s)':<22}{times[0]:>14.6g}{times[-1]:>14.6g}",
               f"{'total mass (' + mass_u + ')':<22}{rows[0][0]:>14.6g}{rows[1][0]:>14.6g}",
-              f"{'kinetic (' + _energy_units(dim) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
+              f"{'kinetic (' + units('kinetic', dim) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
     return "\n".join(lines)

@@ -12,13 +12,25 @@ from jaxmpm.scenes import basic
 class Builtin:
     build: Callable
     summary: str
+    prepare: Callable | None = None   # prepare(scene, params, state) -> state: initial fields a scene file cannot express
 
 
 BUILTINS = {
     "elastic_impact": Builtin(basic.elastic_impact, "two elastic disks collide head-on (2D plane strain; the default scene)"),
-    "vibrating_bar": Builtin(basic.vibrating_bar, "1D fixed-free elastic bar in its first mode (exact solution; Bardenhagen 2002)"),
+    "vibrating_bar": Builtin(basic.vibrating_bar, "1D fixed-free elastic bar in its first mode (exact solution; Bardenhagen 2002)",
+                             basic.vibrating_bar_state),
     "self_weight_column": Builtin(basic.self_weight_column, "1D soft column settling under its own weight (exact static stress; cell crossing)"),
     "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
 }
 
 DEFAULT_SCENE = "elastic_impact"
+
+
+def initial_state(scene, params):
+    """`jaxmpm.init_state`, then the built-in scene's own initial fields (e.g. the vibrating bar's
+    mode shape) when `scene.name` is a built-in that defines them."""
+    from jaxmpm.state import init_state
+
+    state = init_state(scene, params)
+    b = BUILTINS.get(scene.name)
+    return b.prepare(scene, params, state) if b is not None and b.prepare is not None else state

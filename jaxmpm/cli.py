@@ -1,0 +1,163 @@
+"""The `jaxmpm` command (also `python -m jaxmpm`).
+
+    jaxmpm run [SCENE|file.toml] [--out DIR] [--t-end S] [--n-out N] [--set key=value ...]
+               [--opt name=value ...] [--overwrite] [--no-progress] [--x64]
+    jaxmpm scenes
+    jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
+
+`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state) and
+refuses, before simulating, to overwrite any of them without --overwrite. Bad input (an unknown
+scene or key, a value out of range, an existing output) prints `error: <message>` to stderr and
+exits with status 2; a run that becomes non-finite exits with status 1.
+"""
+from __future__ import annotations
+
+import argparse
+import inspect
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def _pairs(items, flag: str) -> dict:
+    """{'key': value} from ['key=value', ...]; values parsed as TOML (numbers, lists, strings)."""
+    from jaxmpm.scenefile import parse_value
+
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{flag} {item!r} is invalid: allowed {flag} key=value (e.g. {flag} t_end=0.5)")
+        out[key.strip()] = parse_value(value.strip())
+    return out
+
+
+def _load(name: str, overrides: dict, options: dict):
+    """The scene `name` (built-in or .toml) with builder options and --set overrides applied."""
+    import jaxmpm
+    from jaxmpm.scenes import BUILTINS
+
+    if options and name in BUILTINS:
+        allowed = list(inspect.signature(BUILTINS[name].build).parameters)
+        for k in options:
+            if k not in allowed:
+                raise ValueError(f"--opt {k} is unknown for scene {name!r}: its options are {allowed}")
+    return jaxmpm.load_scene(name, overrides=overrides, **options)
+
+
+def cmd_run(args) -> int:
+    import jax
+
+    if args.x64:
+        jax.config.update("jax_enable_x64", True)
+    import jaxmpm
+    from jaxmpm import diagnostics, io
+    from jaxmpm.scenes import initial_state
+
+    scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
+    if not scene.name or scene.name in (".", "..") or os.sep in scene.name or "/" in scene.name:
+        raise ValueError(f"name = {scene.name!r} is invalid as an output file name: allowed a name without '/'")
+    out = Path(args.out)
+    h5, png = out / f"{scene.name}.h5", out / f"{scene.name}.png"
+    xdmf = io.xdmf_path(h5)
+    io.check_new(h5, xdmf, png, overwrite=args.overwrite)
+    t_end = scene.t_end if args.t_end is None else args.t_end
+    n_out = scene.n_out if args.n_out is None else args.n_out
+    params = jaxmpm.default_params(scene)
+    state = initial_state(scene, params)
+    n = state.x.shape[0]
+    print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
+          f"{n} particles in {len(scene.phases)} phases, to t = {t_end:g} s with {n_out} outputs, "
+          f"{state.x.dtype}", flush=True)
+    start = diagnostics.summary(scene, params, state)
+    wall = time.perf_counter()
+    final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress)
+    jax.block_until_ready(final)
+    wall = time.perf_counter() - wall
+    end = diagnostics.summary(scene, params, final)
+    io.write(h5, scene, history, params=params, overwrite=args.overwrite)
+    io.plot_state(scene, final, png, overwrite=args.overwrite)
+    print(f"done in {wall:.3g} s wall time (compilation included)")
+    print(f"  {'':<16}{'start':>14}{'end':>14}")
+    print(f"  {'t (s)':<16}{start['t']:>14.6g}{end['t']:>14.6g}")
+    print(f"  {'mass (' + io.units('mass', scene.dim) + ')':<16}{start['mass']:>14.6g}{end['mass']:>14.6g}")
+    for k in ("kinetic", "internal", "total_energy"):
+        label = f"{k.replace('_energy', '')} ({io.units(k, scene.dim)})"
+        print(f"  {label:<16}{start[k]:>14.6g}{end[k]:>14.6g}")
+    print("wrote:")
+    for p in (h5, xdmf, png):
+        print(f"  {p}")
+    return 0
+
+
+def cmd_scenes(args) -> int:
+    from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE
+
+    width = max(map(len, BUILTINS))
+    for name, b in BUILTINS.items():
+        print(f"{name:<{width}}  {b.summary}{'  [default]' if name == DEFAULT_SCENE else ''}")
+    return 0
+
+
+def cmd_show(args) -> int:
+    from jaxmpm import io
+
+    print(io.summary(args.file))
+    if args.png:
+        import jax
+
+        scene, history = io.read(args.file)
+        last = jax.tree.map(lambda a: None if a is None else a[-1], history)
+        print(f"wrote: {io.plot_state(scene, last, args.png, overwrite=args.overwrite)}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from jaxmpm.scenes import DEFAULT_SCENE
+
+    parser = argparse.ArgumentParser(prog="jaxmpm", description="Differentiable multiphase MPM in JAX.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run a scene and write HDF5 + XDMF + PNG",
+                         description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png.")
+    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
+                     help=f"built-in scene name (see `jaxmpm scenes`) or a .toml file (default: {DEFAULT_SCENE})")
+    run.add_argument("--out", default="out", help="output folder (default: out)")
+    run.add_argument("--t-end", type=float, help="end time, s (default: the scene's t_end)")
+    run.add_argument("--n-out", type=int, help="number of outputs after the initial one (default: the scene's)")
+    run.add_argument("--set", action="append", metavar="KEY=VALUE",
+                     help="override a scene-file key, e.g. --set grid.cells=[32,32] --set phase.disk_a.velocity=[0.2,0.2]")
+    run.add_argument("--opt", action="append", metavar="NAME=VALUE",
+                     help="option of a built-in scene's builder, e.g. --opt resolution=0.5")
+    run.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--x64", action="store_true", help="double precision (float64)")
+    run.set_defaults(func=cmd_run)
+
+    scenes = sub.add_parser("scenes", help="list the built-in scenes")
+    scenes.set_defaults(func=cmd_scenes)
+
+    show = sub.add_parser("show", help="summarize an output file (and plot its last output)")
+    show.add_argument("file", help="an .h5 file written by `jaxmpm run`")
+    show.add_argument("--png", help="write a PNG of the last output here")
+    show.add_argument("--overwrite", action="store_true", help="replace an existing PNG")
+    show.set_defaults(func=cmd_show)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the `jaxmpm` command. Returns the exit status (0 ok, 1 failed run, 2 bad input)."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except FloatingPointError as e:
+        print(f"error: the run failed: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""The `jaxmpm` command: run, scenes, show, refusal to overwrite, errors without tracebacks."""
+import os
+import subprocess
+import sys
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import pytest  # noqa: E402
+
+import jaxmpm  # noqa: E402
+from jaxmpm import cli, io  # noqa: E402
+
+TINY = ["--t-end", "0.05", "--n-out", "2", "--set", "grid.cells=[16,16]", "--set", "grid.h=0.0625", "--no-progress"]
+
+
+def _outputs(folder, name="elastic_impact"):
+    return [folder / f"{name}{ext}" for ext in (".h5", ".xdmf", ".png")]
+
+
+@pytest.fixture
+def saved(tmp_path):
+    """An .h5 file of the initial state of a tiny scene (no simulation)."""
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    h5, _ = io.write(tmp_path / "saved.h5", scene, jax.tree.map(lambda a: a[None], state), params=params)
+    return h5
+
+
+def test_run_writes_outputs_and_refuses_second_run(tmp_path, capsys, monkeypatch):
+    assert cli.main(["run", "--out", str(tmp_path), "--x64", *TINY]) == 0
+    out = capsys.readouterr().out
+    files = _outputs(tmp_path)
+    for p in files:
+        assert p.is_file() and str(p) in out
+    assert "mass" in out and "kinetic" in out
+    scene, history = io.read(files[0])
+    assert scene.grid.cells == (16, 16) and scene.name == "elastic_impact"
+    assert history.t.shape == (3,) and history.t[-1] == pytest.approx(0.05)
+    before = [p.read_bytes() for p in files]
+
+    def no_simulation(*a, **k):
+        raise AssertionError("simulated although the outputs exist")
+
+    monkeypatch.setattr(jaxmpm, "simulate", no_simulation)
+    assert cli.main(["run", "--out", str(tmp_path), *TINY]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and str(files[0]) in err and "--overwrite" in err
+    assert "Traceback" not in err
+    assert [p.read_bytes() for p in files] == before
+    monkeypatch.undo()
+    assert cli.main(["run", "--out", str(tmp_path), "--overwrite", *TINY]) == 0
+
+
+def test_run_refuses_if_any_output_exists(tmp_path, capsys):
+    png = _outputs(tmp_path)[2]
+    png.write_bytes(b"keep")
+    assert cli.main(["run", "--out", str(tmp_path), *TINY]) == 2
+    assert str(png) in capsys.readouterr().err
+    assert png.read_bytes() == b"keep" and sorted(os.listdir(tmp_path)) == [png.name]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--set", "grid.foo=1"], ["grid.foo"]),
+    (["--set", "phase.disk_z.velocity=[1.0,0.0]"], ["disk_z"]),
+    (["--set", "cfl=2.0"], ["cfl"]),
+    (["--set", "no_equals_sign"], ["--set", "key=value"]),
+    (["--opt", "res=0.5"], ["res", "resolution"]),
+    (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
+])
+def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
+    assert cli.main(["run", "--out", str(tmp_path), "--no-progress", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "Traceback" not in err
+    for w in words:
+        assert w in err
+    assert not tmp_path.exists() or os.listdir(tmp_path) == []
+
+
+def test_run_scene_file(tmp_path, capsys):
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25).replace(name="from_file", t_end=0.05, n_out=1)
+    toml = tmp_path / "s.toml"
+    toml.write_text(jaxmpm.scene_to_toml(scene))
+    assert cli.main(["run", str(toml), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    assert all(p.is_file() for p in _outputs(tmp_path / "o", "from_file"))
+    assert io.read(tmp_path / "o" / "from_file.h5")[0] == scene
+
+
+def test_scenes_lists_builtins(capsys):
+    assert cli.main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    from jaxmpm.scenes import BUILTINS
+
+    for name, b in BUILTINS.items():
+        assert name in out and b.summary in out
+    assert "elastic_impact" in out
+
+
+def test_show(saved, tmp_path, capsys):
+    assert cli.main(["show", str(saved)]) == 0
+    out = capsys.readouterr().out
+    assert out.strip() == io.summary(saved).strip()
+    assert "elastic_impact" in out and "disk_a" in out
+    png = tmp_path / "last.png"
+    assert cli.main(["show", str(saved), "--png", str(png)]) == 0
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert cli.main(["show", str(saved), "--png", str(png)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert cli.main(["show", str(saved), "--png", str(png), "--overwrite"]) == 0
+
+
+def test_show_missing_file(tmp_path, capsys):
+    assert cli.main(["show", str(tmp_path / "missing.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.h5" in err and "Traceback" not in err
+
+
+def test_python_m_jaxmpm_scenes():
+    r = subprocess.run([sys.executable, "-m", "jaxmpm", "scenes"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "elastic_impact" in r.stdout
