@@ -120,3 +120,11 @@ def nodal_velocity_gradient(grid, dg, v):
     vmin = 1e-12 * grid.h**d
     Lc = jnp.einsum("...ia,...jib->...jab", corners(v, d), dg.A)
     return _safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
+
+
+def nodal_scalar_gradient(grid, dg, p):
+    """integral over each field's cells of theta S_n grad p, for a nodal scalar p (*nodes,)
+    shared by all fields: sum_i p_i (S_n, grad S_i). Returns (K, *nodes, d)."""
+    d = grid.dim
+    pc = corners(p[None], d)                                              # (1, *cells, 2^d)
+    return add_corners(jnp.einsum("...i,...nik->...nk", pc, dg.A), d)

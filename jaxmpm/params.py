@@ -6,6 +6,9 @@
     params.damping                        () 1/s, nodal mass-proportional damping (only if the scene has damping)
     params.body_force[phase_name]         (d,) m/s^2 body acceleration (only if scene.body_force)
     params.cfl                            () Courant number in (0, 1]
+    params.drag_coefficient               () C_d of the exchange (E3), dimensionless (read only with scene.drag)
+    params.drag_length                    () d of (E3), m (default: the cell size h)
+    params.linear_drag                    () K_lin of the linear drag term, kg/(m^3 s) (only with scene.linear_drag)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
 """
@@ -29,6 +32,9 @@ class Params:
     damping: jax.Array
     body_force: dict
     cfl: jax.Array
+    drag_coefficient: jax.Array
+    drag_length: jax.Array
+    linear_drag: jax.Array
 
     def with_constant(self, phase: str, name: str, value) -> "Params":
         """A copy with params.phases[phase][name] = value."""
@@ -42,7 +48,8 @@ class Params:
 
 
 jax.tree_util.register_dataclass(
-    Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl"], meta_fields=[])
+    Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl", "drag_coefficient",
+                         "drag_length", "linear_drag"], meta_fields=[])
 
 
 def default_params(scene, dtype=None) -> Params:
@@ -58,6 +65,9 @@ def default_params(scene, dtype=None) -> Params:
         damping=f(scene.damping if scene.damping is not None else 0.0),
         body_force={p.name: f(np.zeros(d)) for p in scene.phases},
         cfl=f(scene.cfl),
+        drag_coefficient=f(scene.drag if scene.drag is not None else 0.0),
+        drag_length=f(scene.drag_length if scene.drag_length is not None else scene.grid.h),
+        linear_drag=f(scene.linear_drag if scene.linear_drag is not None else 0.0),
     )
 
 
@@ -92,6 +102,16 @@ def check_params(scene, params: Params) -> None:
         unused.append("damping (the scene has no damping effect)")
     if not scene.body_force and any(_is_concrete(b) and np.any(np.asarray(b) != 0) for b in params.body_force.values()):
         unused.append("body_force (the scene has body_force = false)")
+    if scene.drag is None and _is_concrete(params.drag_coefficient) and np.any(np.asarray(params.drag_coefficient) != 0):
+        unused.append("drag_coefficient (the scene has no drag)")
+    if scene.linear_drag is None and _is_concrete(params.linear_drag) and np.any(np.asarray(params.linear_drag) != 0):
+        unused.append("linear_drag (the scene has no linear drag)")
+    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False)):
+        val = getattr(params, name)
+        if _is_concrete(val):
+            a = np.asarray(val)
+            if np.any(a < 0) or (positive and np.any(a <= 0)) or not np.all(np.isfinite(a)):
+                raise ValueError(f"params.{name} = {a} is invalid: allowed {'> 0' if positive else '>= 0'}")
     if unused:
         raise ValueError(f"params.{unused[0]}: set it in the scene to switch the effect on")
     if _is_concrete(params.damping) and np.any(np.asarray(params.damping) < 0):

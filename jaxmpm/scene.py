@@ -186,7 +186,8 @@ class Phase:
     name: unique label. material: a library key (see `jaxmpm.materials.known_keys()`), a key of the
     scene's own `materials`, or a `Material`. geometry: Box or Sphere. velocity: initial velocity
     (m/s). field: index of the velocity field the phase moves with (phases in one field share the
-    grid velocity). ppc: particles per cell per axis.
+    grid velocity). ppc: particles per cell per axis. fraction: initial volume fraction of the phase
+    where it is (in (0, 1]; < 1 for interpenetrating mixtures): scales particle volume and mass.
     """
 
     name: str
@@ -195,6 +196,7 @@ class Phase:
     velocity: tuple[float, ...] | None = None
     field: int = 0
     ppc: int = 2
+    fraction: float = 1.0
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name.isidentifier():
@@ -208,10 +210,14 @@ class Phase:
             _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
         if not isinstance(self.ppc, int) or isinstance(self.ppc, bool) or not 1 <= self.ppc <= 8:
             _fail(f"phase.{self.name}.ppc", self.ppc, "an integer in [1, 8]")
+        frac = _floats(f"phase.{self.name}.fraction", self.fraction, 1)[0]
+        if not 0 < frac <= 1:
+            _fail(f"phase.{self.name}.fraction", frac, "(0, 1]")
+        object.__setattr__(self, "fraction", frac)
 
     def to_dict(self):
         mat = self.material if isinstance(self.material, str) else self.material.key
-        return {"name": self.name, "material": mat, "field": self.field, "ppc": self.ppc,
+        return {"name": self.name, "material": mat, "field": self.field, "ppc": self.ppc, "fraction": self.fraction,
                 "velocity": list(self.velocity), "geometry": self.geometry.to_dict()}
 
 
@@ -257,6 +263,10 @@ class Scene:
       gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
       damping: mass-proportional nodal damping rate (1/s), or None for no damping term.
       body_force: True to give each phase a constant body acceleration Param (m/s^2).
+      drag: exchange drag coefficient C_d of (E3) between velocity fields, or None for no quadratic
+        drag. drag_length: the length d of (E3) in m (None: the cell size h). linear_drag: K_lin of
+        the optional linear term in kg/(m^3 s), or None. interface_forces: the common-pressure
+        interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields).
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
@@ -269,6 +279,10 @@ class Scene:
     gravity_ramp: float = 0.0
     damping: float | None = None
     body_force: bool = False
+    drag: float | None = None
+    drag_length: float | None = None
+    linear_drag: float | None = None
+    interface_forces: bool = True
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
@@ -326,6 +340,17 @@ class Scene:
             object.__setattr__(self, "damping", c)
         if not isinstance(self.body_force, bool):
             _fail("effects.body_force", self.body_force, "true | false")
+        for name, unit, positive in (("drag", "", False), ("drag_length", "m", True), ("linear_drag", "kg/(m^3 s)", False)):
+            val = getattr(self, name)
+            if val is not None:
+                val = _floats(f"effects.{name}", val, 1)[0]
+                if val < 0 or (positive and val == 0):
+                    _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
+                object.__setattr__(self, name, val)
+        if not isinstance(self.interface_forces, bool):
+            _fail("effects.interface_forces", self.interface_forces, "true | false")
+        if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
+            _fail("shape", self.shape, "'ddmp' or 'linear' with the 'seed' transfer when phases use several velocity fields")
         if not isinstance(self.boundary, Boundary):
             _fail("boundary", self.boundary, "a Boundary")
         cfl = _floats("cfl", self.cfl, 1)[0]
@@ -350,6 +375,15 @@ class Scene:
     @property
     def n_fields(self) -> int:
         return 1 + max(p.field for p in self.phases)
+
+    @property
+    def has_exchange(self) -> bool:
+        """Whether the step traces the exchange force (E3): several fields and a drag term."""
+        return self.n_fields > 1 and (self.drag is not None or self.linear_drag is not None)
+
+    @property
+    def has_interface_forces(self) -> bool:
+        return self.n_fields > 1 and self.interface_forces
 
     def material(self, phase: Phase) -> Material:
         return resolve_material(phase.material, self.materials, f"phase.{phase.name}.material")

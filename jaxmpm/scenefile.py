@@ -42,9 +42,9 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force")
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces")
 OUTPUT_KEYS = ("n_out",)
-PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc")
+PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
 
 
 def _check_keys(d: Any, allowed, where: str) -> dict:
@@ -115,7 +115,7 @@ def scene_from_dict(d: Mapping) -> Scene:
             material=_typed(p["material"], (str,), f"{where}.material", "a material key (string)"),
             geometry=geometry_from_dict(p["geometry"], f"{where}.geometry"),
             velocity=tuple(p["velocity"]) if isinstance(p.get("velocity"), list) else p.get("velocity"),
-            field=p.get("field", 0), ppc=p.get("ppc", 2)))
+            field=p.get("field", 0), ppc=p.get("ppc", 2), fraction=p.get("fraction", 1.0)))
 
     kw = {}
     for k, types, allowed in (("name", (str,), "a string"), ("description", (str,), "a string"),
@@ -126,11 +126,12 @@ def scene_from_dict(d: Mapping) -> Scene:
     if "gravity" in e:
         grav = e["gravity"]
         kw["gravity"] = tuple(grav) if isinstance(grav, list) else grav
-    for k in ("gravity_ramp", "damping"):
+    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag"):
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
-    if "body_force" in e:
-        kw["body_force"] = _typed(e["body_force"], (bool,), "effects.body_force", "true | false")
+    for k in ("body_force", "interface_forces"):
+        if k in e:
+            kw[k] = _typed(e[k], (bool,), f"effects.{k}", "true | false")
     if "n_out" in o:
         kw["n_out"] = o["n_out"]
     return Scene(grid=grid, phases=tuple(plist), materials=tuple(mats), boundary=boundary, **kw)
@@ -152,6 +153,11 @@ def scene_to_dict(scene: Scene) -> dict:
         e["damping"] = scene.damping
     if scene.body_force:
         e["body_force"] = True
+    for k in ("drag", "drag_length", "linear_drag"):
+        if getattr(scene, k) is not None:
+            e[k] = getattr(scene, k)
+    if not scene.interface_forces:
+        e["interface_forces"] = False
     d["effects"] = e
     d["output"] = {"n_out": scene.n_out}
     used = {p.material.key if isinstance(p.material, Material) else p.material for p in scene.phases}

@@ -101,7 +101,7 @@ def init_state(scene, params) -> State:
     for p in scene.phases:
         x = sample_phase(scene.grid, p)
         n = len(x)
-        vol = np.full(n, (h / p.ppc) ** d)
+        vol = np.full(n, p.fraction * (h / p.ppc) ** d)
         xs.append(jnp.asarray(x, dtype))
         vs.append(jnp.broadcast_to(jnp.asarray(p.velocity, dtype), (n, d)))
         vols.append(jnp.asarray(vol, dtype))

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm import ddmp
+from jaxmpm import ddmp, fields
 from jaxmpm.materials.models import MODELS
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
@@ -121,24 +121,63 @@ def body_acceleration(lay, params, state):
     return acc
 
 
-def particle_to_grid(lay, st, state, beta):
-    """Stage 2: one scatter of mass, momentum, force (and DDMP's nodal volume and stress share).
-    Returns a dict of nodal arrays (K, n_nodes, ...)."""
-    d = lay.dim
-    m, v, V, sig = state.mass, state.v, state.volume, state.stress
-    w = st.w[..., None]
-    sig_p = V[:, None, None] * sig if beta is None else (V * beta)[:, None, None] * sig
-    parts = [w * m[:, None, None], w * (m[:, None] * v)[:, None, :],
-             -jnp.einsum("nab,nsb->nsa", sig_p, st.dw)]                           # (E11) first part
-    if beta is not None:
-        shv = ((V * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
-        parts += [w * V[:, None, None], w * shv[:, None, :]]
-    g = scatter(st, lay.field, jnp.concatenate(parts, -1), lay.n_fields, lay.n_nodes)
-    out = {"m": g[..., 0], "mv": g[..., 1:1 + d], "f": g[..., 1 + d:1 + 2 * d]}
-    if beta is not None:
-        out["vol"] = g[..., 1 + 2 * d]
-        out["shv"] = g[..., 2 + 2 * d:].reshape(g.shape[:-1] + (d, d))
+def _scatter_named(lay, st, parts):
+    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}."""
+    names = list(parts)
+    sizes = [parts[k].shape[-1] for k in names]
+    g = scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes)
+    out, i = {}, 0
+    for k, c in zip(names, sizes):
+        out[k] = g[..., i:i + c]
+        i += c
     return out
+
+
+def _stress_parts(st, volume, beta, sig):
+    """Force contributions of particle stresses sig (N, d, d): the particle part
+    -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S."""
+    d = sig.shape[-1]
+    Vb = volume if beta is None else volume * beta
+    parts = {"f": -jnp.einsum("nab,nsb->nsa", Vb[:, None, None] * sig, st.dw)}
+    if beta is not None:
+        shv = ((volume * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
+        parts["shv"] = st.w[..., None] * shv[:, None, :]
+    return parts
+
+
+def _nodal_stress_force(lay, dg, g):
+    """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
+    f = g["f"]
+    if "shv" in g:
+        shv = g["shv"].reshape(_grid_shape(lay) + (lay.dim, lay.dim))
+        f = f + ddmp.nodal_stress_force(lay.scene.grid, dg, shv).reshape(f.shape)
+    return f
+
+
+def phase_pressure_and_compressibility(lay, params, state):
+    """(N,) particle pressure p = -tr(sigma) / d (Pa) and compressibility kappa = 1 / K (1/Pa)."""
+    scene = lay.scene
+    rho = state.mass / state.volume
+    kappa = jnp.concatenate([1.0 / MODELS[scene.material(p).model].bulk_modulus(params.phases[p.name], rho[sl], lay.dim)
+                             for p, sl in zip(scene.phases, lay.slices)])
+    return -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim, kappa
+
+
+def particle_to_grid(lay, params, st, state, beta):
+    """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
+    (nodal volume, stress share) and the multi-field stage (E15 fit moments, compressibility) need.
+    Returns {name: (K, n_nodes, C)}."""
+    m, v, V = state.mass, state.v, state.volume
+    w = st.w[..., None]
+    parts = {"m": w * m[:, None, None], "mv": w * (m[:, None] * v)[:, None, :]}
+    parts.update(_stress_parts(st, V, beta, state.stress))
+    if beta is not None or lay.n_fields > 1:
+        parts["vol"] = w * V[:, None, None]
+    if lay.scene.has_interface_forces:
+        p, kappa = phase_pressure_and_compressibility(lay, params, state)
+        parts["lsq"] = fields.lsq_moments(st, p, V)                                  # (E15)
+        parts["kvol"] = w * (V * kappa)[:, None, None]
+    return _scatter_named(lay, st, parts)
 
 
 def ddmp_operators(lay, st, nodal_volume, dtype):
@@ -148,28 +187,63 @@ def ddmp_operators(lay, st, nodal_volume, dtype):
                       cells.reshape((lay.n_fields,) + scene.grid.cells))
 
 
-def internal_force(lay, st, g, dtype):
-    """Stage 3a: nodal internal force (K, n_nodes, d), adding DDMP's node-to-node part (E11)."""
-    f = g["f"]
-    if "shv" in g:
-        dg = ddmp_operators(lay, st, g["vol"], dtype)
-        shv = g["shv"].reshape(_grid_shape(lay) + (lay.dim, lay.dim))
-        f = f + ddmp.nodal_stress_force(lay.scene.grid, dg, shv).reshape(f.shape)
-    return f
+def _node_volume(lay, dtype):
+    return jnp.asarray(ddmp.node_support(lay.scene.grid).reshape(-1), dtype)
 
 
-def grid_acceleration(lay, params, state, st, g, acc_p, m_min):
-    """Stage 3b: nodal velocity v (BC applied) and acceleration a = f / m + body - damping v."""
-    m = g["m"][..., None]
+def interface_force(lay, st, beta, state, g, dg, m_min):
+    """(E13) interface forces between fields from the common pressure (E6, E15), (K, n_nodes, d):
+    I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
+    minus the mass-fraction share of the net, so they sum to zero at each node."""
+    d, h = lay.dim, lay.scene.grid.h
+    dtype = state.mass.dtype
+    vol = g["vol"][..., 0]
+    theta = vol / _node_volume(lay, dtype)[None]
+    kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
+    P = fields.lsq_nodal_pressure(g["lsq"], d, h)
+    p_n = fields.common_pressure(theta, kappa, P)                                      # (E6)
+    p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
+    iso = p_p[:, None, None] * jnp.eye(d, dtype=dtype)
+    I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso)))
+    grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
+    I = I - grad_p.reshape(I.shape)
+    return fields.share_interface_force(I, g["m"][..., 0], m_min)
+
+
+def exchange_force(lay, params, m, vol, v, dt, m_min):
+    """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
+    and velocities v (K, n_nodes, d)."""
+    scene = lay.scene
+    V_n = _node_volume(lay, m.dtype)
+    theta = vol / V_n[None]
+    rho = fields.safe_div(m, vol, 0.0)
+    K = fields.drag_matrix(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
+                           params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
+    return fields.exchange(m, v, K, dt, V_n, m_min)
+
+
+def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
+    """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
+    internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3)."""
+    scene = lay.scene
+    dtype = state.mass.dtype
+    dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype) if (beta is not None or scene.has_interface_forces) else None
+    m = g["m"]
     v = _apply_bc(lay, _safe_div(g["mv"], m, m_min))
-    f = internal_force(lay, st, g, state.mass.dtype)
+    f = _nodal_stress_force(lay, dg, g)
+    if scene.has_interface_forces:
+        f = f + interface_force(lay, st, beta, state, g, dg, m_min)
     if acc_p is not None:
         f = f + scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
                         lay.n_fields, lay.n_nodes)
     a = _safe_div(f, m, m_min)
-    if lay.scene.damping is not None:
+    if scene.damping is not None:
         a = a - params.damping * v
-    return v, _apply_bc(lay, a)
+    a = _apply_bc(lay, a)
+    if scene.has_exchange:
+        F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
+        a = _apply_bc(lay, a + _safe_div(F, m, m_min))
+    return v, a
 
 
 def particle_velocity_gradient(lay, st, v, nodal_volume=None):
@@ -187,17 +261,22 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None):
     return beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar                  # (E12)
 
 
-def velocity_gradient(lay, st, state, m_min):
+def velocity_gradient(lay, params, st, state, dt, m_min):
     """Stage 4b: remap the particle momentum onto the grid at the new positions (seed:
-    m_n v_n = sum_p m_p v_p S_n(x_p^new)), walls applied, then L_p (N, d, d)."""
+    m_n v_n = sum_p m_p v_p S_n(x_p^new)), walls applied, with several fields the implicit exchange
+    applied again to the remapped velocities (E14), then L_p (N, d, d)."""
     d = lay.dim
-    parts = [state.mass[:, None], state.mass[:, None] * state.v]
+    w = st.w[..., None]
+    parts = {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * state.v)[:, None, :]}
     ddmp_on = lay.scene.shape == "ddmp"
-    if ddmp_on:
-        parts.append(state.volume[:, None])
-    g = scatter(st, lay.field, st.w[..., None] * jnp.concatenate(parts, -1)[:, None, :], lay.n_fields, lay.n_nodes)
-    v = _apply_bc(lay, _safe_div(g[..., 1:1 + d], g[..., :1], m_min))
-    return particle_velocity_gradient(lay, st, v, g[..., 1 + d] if ddmp_on else None)
+    if ddmp_on or lay.scene.has_exchange:
+        parts["vol"] = w * state.volume[:, None, None]
+    g = _scatter_named(lay, st, parts)
+    v = _apply_bc(lay, _safe_div(g["mv"], g["m"], m_min))
+    if lay.scene.has_exchange:                                                           # (E14)
+        F = exchange_force(lay, params, g["m"][..., 0], g["vol"][..., 0], v, dt, m_min)
+        v = _apply_bc(lay, v + dt * _safe_div(F, g["m"], m_min))
+    return particle_velocity_gradient(lay, st, v, g["vol"][..., 0] if ddmp_on else None)
 
 
 def constitutive(lay, params, state, L, dt):
@@ -233,9 +312,9 @@ def seed_update(lay, params, state, dt):
     m_min = _mass_floor(state)
     st = stencil(scene, state.x)                                                   # 1
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
-    g = particle_to_grid(lay, st, state, beta)                                     # 2
+    g = particle_to_grid(lay, params, st, state, beta)                             # 2
     acc_p = body_acceleration(lay, params, state)
-    v_n, a_n = grid_acceleration(lay, params, state, st, g, acc_p, m_min)          # 3
+    v_n, a_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
     # 4: seed_halfstep moves particles with v_old + a dt / 2 (the seed's literal term); seed moves them
     # with v_old + a dt, the velocity whose gradient drives the stress (second order; see seed_update).
     half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
@@ -245,7 +324,7 @@ def seed_update(lay, params, state, dt):
     x = state.x + dt * va[:, d:]
     moved = replace(state, x=x, v=v)
     st2 = stencil(scene, x)
-    L = velocity_gradient(lay, st2, moved, m_min)
+    L = velocity_gradient(lay, params, st2, moved, dt, m_min)
     F, sig, vol, energy = constitutive(lay, params, moved, L, dt)                  # 5
     return replace(moved, t=state.t + dt, F=F, stress=sig, volume=vol, energy=energy)
 

@@ -79,3 +79,14 @@ def solid_wave_speed(c, rho, dim):
 
 def fluid_wave_speed(c, rho, dim):
     return jnp.sqrt(c["K"] / rho)
+
+
+def solid_bulk_modulus(c, rho, dim):
+    """K = E / (3 (1 - 2 nu)); in 1D the bar modulus E (the only volumetric stiffness there)."""
+    if dim == 1:
+        return c["E"] * jnp.ones_like(rho)
+    return c["E"] / (3 * (1 - 2 * c["nu"])) * jnp.ones_like(rho)
+
+
+def fluid_bulk_modulus(c, rho, dim):
+    return c["K"] * jnp.ones_like(rho)

@@ -16,12 +16,14 @@ class Model:
     update(c, F, stress, L, dt) -> (F, stress): c the constants (dict of scalars), F and stress
       (N, d, d), L the velocity gradient (N, d, d) in 1/s, dt in s.
     wave_speed(c, rho, dim) -> (N,) longitudinal wave speed in m/s at density rho (kg/m^3).
+    bulk_modulus(c, rho, dim) -> (N,) bulk modulus K in Pa (compressibility kappa = 1 / K, E6).
     strain_energy(c, F) -> (N,) elastic energy per reference volume (J/m^3), where defined.
     """
 
     constants: dict
     update: Callable
     wave_speed: Callable
+    bulk_modulus: Callable
     strain_energy: Callable | None = None
 
 
@@ -31,11 +33,11 @@ _SOLID = {"rho0": (0.0, float("inf"), False, False, "kg/m^3"),
 
 MODELS = {
     "linear_elastic": Model(_SOLID, elastic.linear_elastic_update, elastic.solid_wave_speed,
-                            elastic.linear_elastic_energy),
-    "hypoelastic": Model(_SOLID, elastic.hypoelastic_update, elastic.solid_wave_speed),
+                            elastic.solid_bulk_modulus, elastic.linear_elastic_energy),
+    "hypoelastic": Model(_SOLID, elastic.hypoelastic_update, elastic.solid_wave_speed, elastic.solid_bulk_modulus),
     "linear_fluid": Model({"rho0": (0.0, float("inf"), False, False, "kg/m^3"),
                            "K": (0.0, float("inf"), False, False, "Pa")},
-                          elastic.linear_fluid_update, elastic.fluid_wave_speed),
+                          elastic.linear_fluid_update, elastic.fluid_wave_speed, elastic.fluid_bulk_modulus),
 }
 
 

@@ -1,0 +1,256 @@
+"""Throughput of jaxmpm against the peer MLS-MPM scripts, in particle-steps per second.
+
+What it measures: Mpart-steps/s = particles * steps / seconds / 1e6 on the peers' 'mpm88' scene
+(weakly compressible fluid block falling in a box, quadratic B-spline APIC, slip walls 3 nodes
+thick, gravity; /work/shared/bench/peers/scene.py), float32, fixed time step
+dt = 2e-4 * 128 / n_grid (2D) or 2e-4 * 64 / n_grid (3D), as the peers use.
+
+Rows:
+  jax-naive, taichi, warp   the peer scripts in ../shared/bench/peers/, run unchanged as subprocesses
+                            (`python <peer>.py n_grid dim scale steps`, one JSON line each); Taichi and
+                            Warp only where importable in this interpreter, else "not installed".
+                            Each peer compiles/warms up, then times one run; we take the median over
+                            --repeats separate calls. jax-naive+ynn is the same script with the XLA flag.
+  jaxmpm                    jaxmpm.load_scene("mpm88"): `lax.scan` of `step(params, state, dt=dt)` for
+                            `steps` steps, jitted, compiled ahead (compile_s), warmed up once from the
+                            initial state, then the median of --repeats timed runs, each continuing
+                            from the previous one (the peers also time steps after the warm-up).
+  jaxmpm+ynn                the same with XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= (empty value;
+                            design/PERFORMANCE.md reports it helps on CPU).
+  jaxmpm-linear/-ddmp-seed  the same particles with shape 'linear' / 'ddmp' and the seed transfer.
+A run is "stable" when, after all (1 + repeats) * steps steps (2D defaults: t = 0.4 s; the block hits
+the floor at ~0.16 s), every state value is finite, all particles are in the grid, max |v| < 10 m/s
+(free fall from the block's top gives ~3.3 m/s, the splash ~7 m/s) and the total energy (kinetic +
+gravitational + internal) has grown by less than 1% (the fluid should only lose energy). A jaxmpm row
+that is not stable at the peers' dt is re-run at 0.3 * jaxmpm.cfl_limit(...) and says so in its note.
+Note: jaxmpm samples particles on a regular lattice (2 per cell per axis in 2D: ~10.6k particles),
+the peers 8192 random ones; the per-particle-step rate makes the two comparable.
+
+Every configuration runs in its own subprocess (this script with a hidden `--one NAME`), so compile
+caches, memory and XLA_FLAGS do not leak between them; they run one after another.
+
+Run:  python benchmarks/throughput.py                  # 2D, 128^2 grid, 500 steps
+      python benchmarks/throughput.py --dim 3          # 3D, 64^3 grid, 100 steps
+      python benchmarks/throughput.py --only jaxmpm --steps 200 --repeats 5
+Writes benchmarks/results/throughput.csv (--out) with device, CPU count, jax version and date.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import importlib.metadata
+import importlib.util
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"   # /work/shared/bench/peers
+YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
+
+# jaxmpm configurations: name -> (shape, transfer, extra XLA flag or None)
+JAXMPM = {
+    "jaxmpm": ("bspline2", "apic", None),
+    "jaxmpm+ynn": ("bspline2", "apic", YNN_FLAG),
+    "jaxmpm-linear-seed": ("linear", "seed", None),
+    "jaxmpm-ddmp-seed": ("ddmp", "seed", None),
+}
+# peer configurations: name -> (script, module it needs, extra XLA flag or None, dims it covers)
+PEERS = {
+    "jax-naive": ("jax_mpm.py", "jax", None, (2, 3)),
+    "jax-naive+ynn": ("jax_mpm.py", "jax", YNN_FLAG, (2, 3)),
+    "taichi-cpu": ("taichi_mpm.py", "taichi", None, (2, 3)),
+    "warp-cpu": ("warp_mpm.py", "warp", None, (2,)),
+}
+FIELDS = ["config", "dim", "n_grid", "particles", "steps", "dt", "seconds", "compile_s", "mpart_steps_per_s",
+          "ratio_to_jax_naive", "finite", "stable", "note", "xla_flags", "device", "cpu_count", "jax_version", "date"]
+
+
+def peer_dt(dim: int, n_grid: int) -> float:
+    """The peers' fixed time step (scene.py), s."""
+    return 2e-4 * 128 / n_grid if dim == 2 else 2e-4 * 64 / n_grid
+
+
+def child_env(flag: str | None) -> dict:
+    """Environment of a child process: XLA_FLAGS extended with `flag` (read when jax is imported)."""
+    env = dict(os.environ)
+    if flag:
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + flag).strip()
+    return env
+
+
+# ----------------------------------------------------------------------------- child: one jaxmpm run
+def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int) -> dict:
+    import dataclasses
+
+    import jax  # imported here, after the parent has set XLA_FLAGS in our environment
+    import jax.numpy as jnp
+    import numpy as np
+
+    import jaxmpm
+
+    shape, transfer, _ = JAXMPM[name]
+    scene = dataclasses.replace(jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim), shape=shape, transfer=transfer)
+    params = jaxmpm.default_params(scene)      # float32 (x64 stays off)
+    state0 = jaxmpm.init_state(scene, params)
+    step = jaxmpm.make_step(scene)
+
+    def rollout(params, state, dt):
+        return jax.lax.scan(lambda s, _: (step(params, s, dt=dt), None), state, None, length=steps)[0]
+
+    def energy(s):   # kinetic + gravitational + internal (state.energy is per unit mass), J
+        m = s.mass
+        return float(jnp.sum(m * (0.5 * jnp.sum(s.v**2, -1) - s.x @ params.gravity + s.energy)))
+
+    e0 = energy(state0)
+
+    def stability(s):   # -> (finite, stable, max |v| m/s, relative energy change)
+        finite = all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(s))
+        if not finite:
+            return False, False, float("nan"), float("nan")
+        x, vmax = np.asarray(s.x), float(jnp.max(jnp.linalg.norm(s.v, axis=-1)))
+        inside = bool(((x >= np.asarray(scene.grid.origin)) & (x <= np.asarray(scene.grid.hi))).all())
+        de = (energy(s) - e0) / abs(e0)
+        return True, inside and vmax < 10.0 and de < 0.01, vmax, de
+
+    def measure(dt):
+        """Warm-up run from the initial state, then `repeats` timed runs, each continuing from the last
+        (as the peers time their second block of steps); returns the final state and the run times."""
+        s = jax.block_until_ready(sim(params, state0, dt))
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            s = jax.block_until_ready(sim(params, s, dt))
+            times.append(time.perf_counter() - t0)
+        return s, times
+
+    dt = jnp.asarray(peer_dt(dim, n_grid), jnp.float32)
+    t0 = time.perf_counter()
+    sim = jax.jit(rollout).lower(params, state0, dt).compile()   # dt is traced: no recompile on fallback
+    compile_s = time.perf_counter() - t0
+    out, times = measure(dt)
+    finite, stable, vmax, de = stability(out)
+    note = "dt = peers' dt"
+    if not stable:   # fall back to a CFL-bounded step, and say so
+        why = f"max|v| = {vmax:.3g} m/s, dE/E0 = {de:+.2%}" if finite else "non-finite"
+        note = f"UNSTABLE at peers' dt ({why} at t = {float(out.t):.3g} s): re-run at 0.3 * cfl_limit"
+        dt = jnp.asarray(0.3 * jaxmpm.cfl_limit(scene, params, state0), jnp.float32)
+        out, times = measure(dt)
+        finite, stable, vmax, de = stability(out)
+        note += "" if stable else ", STILL UNSTABLE"
+    note += f"; at t = {float(out.t):.3g} s: max|v| = {vmax:.3g} m/s, dE/E0 = {de:+.2%}"
+    sec = statistics.median(times)
+    n = int(state0.n_particles)
+    return dict(config=name, dim=dim, n_grid=n_grid, particles=n, steps=steps, dt=float(f"{float(dt):.6g}"), seconds=sec,
+                compile_s=compile_s, mpart_steps_per_s=n * steps / sec / 1e6, finite=finite, stable=stable,
+                note=note + f"; runs {', '.join('%.3f' % t for t in times)} s",
+                device=str(jax.devices()[0]), jax_version=jax.__version__)
+
+
+# ----------------------------------------------------------------------------- parent: run everything
+def run_child(cmd: list[str], env: dict, cwd: Path, timeout: float = 900) -> dict:
+    """Run one subprocess and parse the last line of its stdout as JSON; errors become a note."""
+    try:
+        p = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return dict(note=f"timed out after {timeout:.0f} s")
+    lines = p.stdout.strip().splitlines()
+    if p.returncode != 0 or not lines:
+        err = (p.stderr.strip().splitlines() or ["no output"])[-1]
+        return dict(note=f"failed (rc {p.returncode}): {err[:200]}")
+    return json.loads(lines[-1])
+
+
+def run_peer(name: str, a) -> dict:
+    script, module, flag, dims = PEERS[name]
+    row = dict(config=name, dim=a.dim, n_grid=a.n_grid, steps=a.steps, xla_flags=flag or "")
+    if a.dim not in dims:
+        return row | dict(note="peer covers " + "/".join(f"{d}D" for d in dims) + " only")
+    if importlib.util.find_spec(module) is None:
+        return row | dict(note="not installed")
+    cmd = [sys.executable, script, str(a.n_grid), str(a.dim), "1.0", str(a.steps)]
+    results = [run_child(cmd, child_env(flag), PEERS_DIR) for _ in range(a.repeats)]
+    ok = [r for r in results if "seconds" in r]
+    if not ok:
+        return row | dict(note=results[-1].get("note", "failed"))
+    sec = statistics.median(r["seconds"] for r in ok)
+    n = ok[0]["particles"]
+    return row | dict(particles=n, dt=peer_dt(a.dim, a.n_grid), seconds=sec, mpart_steps_per_s=n * a.steps / sec / 1e6,
+                      finite=all(r["finite"] for r in ok), device=ok[0].get("device"),
+                      note=f"peer script, median of {len(ok)} calls: {', '.join('%.3f' % r['seconds'] for r in ok)} s")
+
+
+def run_jaxmpm_child(name: str, a) -> dict:
+    flag = JAXMPM[name][2]
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--one", name, "--dim", str(a.dim),
+           "--n-grid", str(a.n_grid), "--steps", str(a.steps), "--repeats", str(a.repeats)]
+    r = run_child(cmd, child_env(flag), HERE.parent)
+    return dict(config=name, dim=a.dim, n_grid=a.n_grid, steps=a.steps) | r | dict(xla_flags=flag or "")
+
+
+def fmt(v, spec):
+    return "" if v is None or v == "" else format(v, spec)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dim", type=int, choices=(2, 3), default=2)
+    ap.add_argument("--n-grid", type=int, default=None, help="grid cells per axis (default 128 in 2D, 64 in 3D)")
+    ap.add_argument("--steps", type=int, default=None, help="steps per timed run (default 500 in 2D, 100 in 3D)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
+    ap.add_argument("--only", choices=("jaxmpm", "peers"), default=None)
+    ap.add_argument("--out", default=str(HERE / "results" / "throughput.csv"))
+    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)   # child mode: one jaxmpm config
+    a = ap.parse_args(argv)
+    a.n_grid = a.n_grid or (128 if a.dim == 2 else 64)
+    a.steps = a.steps or (500 if a.dim == 2 else 100)
+
+    if a.one:
+        print(json.dumps(run_jaxmpm(a.one, a.dim, a.n_grid, a.steps, a.repeats)))
+        return
+
+    rows = []
+    names = ([] if a.only == "jaxmpm" else list(PEERS)) + ([] if a.only == "peers" else list(JAXMPM))
+    for name in names:
+        t0 = time.perf_counter()
+        row = run_peer(name, a) if name in PEERS else run_jaxmpm_child(name, a)
+        print(f"  {name:20s} {fmt(row.get('mpart_steps_per_s'), '.3f'):>8s} Mpart-steps/s  "
+              f"({time.perf_counter() - t0:.0f} s wall)  {row.get('note', '')}", file=sys.stderr, flush=True)
+        rows.append(row)
+
+    naive = next((r.get("mpart_steps_per_s") for r in rows if r["config"] == "jax-naive"), None)
+    device = next((r["device"] for r in rows if r.get("device")), "")   # jax.devices()[0] of a JAX child
+    common = dict(cpu_count=os.cpu_count(), jax_version=importlib.metadata.version("jax"),
+                  date=datetime.datetime.now().isoformat(timespec="seconds"))
+    for r in rows:
+        rate = r.get("mpart_steps_per_s")
+        r["ratio_to_jax_naive"] = rate / naive if rate and naive else None
+        r.update(common | dict(device=device))
+
+    # the table
+    print(f"\nmpm88 {a.dim}D, {a.n_grid}^{a.dim} grid, float32, dt = {peer_dt(a.dim, a.n_grid):.3g} s; "
+          f"device {device}, {common['cpu_count']} CPUs, jax {common['jax_version']}")
+    head = f"{'config':20s} {'particles':>9s} {'steps':>5s} {'s':>8s} {'Mpart-steps/s':>13s} {'x naive':>7s} {'finite':>6s} {'stable':>6s}  note"
+    print(head + "\n" + "-" * len(head))
+    for r in rows:
+        yn = lambda k: "" if r.get(k) is None else ("yes" if r[k] else "NO")
+        print(f"{r['config']:20s} {fmt(r.get('particles'), 'd'):>9s} {r['steps']:>5d} {fmt(r.get('seconds'), '.3f'):>8s} "
+              f"{fmt(r.get('mpart_steps_per_s'), '.3f'):>13s} {fmt(r.get('ratio_to_jax_naive'), '.2f'):>7s} {yn('finite'):>6s} {yn('stable'):>6s}  "
+              f"{'compile %.1f s; ' % r['compile_s'] if r.get('compile_s') else ''}{r.get('note', '')}")
+
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""Multi-velocity grid stage: volume fractions, common pressure, interface forces, exchange.
+
+With K velocity fields, nodal arrays carry the fields as a leading axis (K, n_nodes, ...). All of
+this is traced only for scenes with K >= 2; a one-field scene never calls into this module.
+
+  theta_nk = V_nk / V_n                                  nodal volume fraction (V_n: node support, R1)
+  P_nk     value at node n of the V_p S_np-weighted linear least-squares fit of the particle
+           pressures of field k                            (E15)
+  p_n      = sum_k f_k P_nk, f_k = theta_k kappa_k / sum_j theta_j kappa_j     (E6)
+  I_nk     = -sum_{p in k} V_p p(x_p) G_np - integral_{cells of k} theta_k S_n grad p dV
+  f_nk    += I_nk - (m_nk / M_n) sum_j I_nj                                      (E13)
+  exchange (E3), implicit per node:
+           m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k,
+           K_kj = C_d theta_k theta_j rho_f |v*_k - v*_j| / d + K_lin theta_k theta_j,
+           rho_f the true density of the lighter of the two phases.
+Shapes: K fields, n nodes, d dimensions; SI units.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def safe_div(a, b, bmin):
+    """a / b where b > bmin, else 0, with finite gradients on both branches (double where)."""
+    ok = b > bmin
+    return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
+
+
+def lsq_moments(st, pressure, volume):
+    """Per-particle, per-stencil-node contributions (N, S, C) for the linear fit (E15):
+    w, w r, w r r^T, w p, w p r with w = V_p S_np and r = x_p - x_n. C = 2 + 2 d + d^2."""
+    w = (volume[:, None] * st.w)[..., None]                 # (N, S, 1)
+    r = -st.dpos                                            # (N, S, d)
+    d = r.shape[-1]
+    rr = (r[..., :, None] * r[..., None, :]).reshape(r.shape[:-1] + (d * d,))
+    p = pressure[:, None, None]
+    return jnp.concatenate([w, w * r, w * rr, w * p, w * p * r], -1)
+
+
+def lsq_nodal_pressure(moments, d, h):
+    """(E15) P_nk = a of the fit p ~ a + b . (x - x_n) from the scattered moments (K, n, C);
+    the plain weighted average where the fit is singular (a node seen by particles on a line)."""
+    w = moments[..., 0]
+    wr = moments[..., 1:1 + d]
+    wrr = moments[..., 1 + d:1 + d + d * d].reshape(moments.shape[:-1] + (d, d))
+    wp = moments[..., 1 + d + d * d]
+    wpr = moments[..., 2 + d + d * d:]
+    top = jnp.concatenate([w[..., None], wr], -1)[..., None, :]                 # (K, n, 1, d+1)
+    rest = jnp.concatenate([wr[..., :, None], wrr], -1)                          # (K, n, d, d+1)
+    M = jnp.concatenate([top, rest], -2)                                         # (K, n, d+1, d+1)
+    rhs = jnp.concatenate([wp[..., None], wpr], -1)
+    # condition: scale the position block by h so the matrix is O(w) throughout
+    scale = jnp.concatenate([jnp.ones(1, M.dtype), jnp.full((d,), 1.0 / h, M.dtype)])
+    Ms = M * scale[:, None] * scale[None, :]
+    wmin = 1e-12 * jnp.max(w)
+    det = jnp.linalg.det(Ms)
+    ok = (w > wmin) & (jnp.abs(det) > 1e-6 * jnp.maximum(w, wmin) ** (d + 1))
+    eye = jnp.eye(d + 1, dtype=M.dtype)
+    sol = jnp.linalg.solve(jnp.where(ok[..., None, None], Ms, eye), (rhs * scale)[..., None])[..., 0]
+    average = safe_div(wp, w, wmin)
+    return jnp.where(ok, sol[..., 0], average)
+
+
+def common_pressure(theta, kappa, P):
+    """(E6) p_n = sum_k theta_k kappa_k P_k / sum_j theta_j kappa_j. theta, kappa, P: (K, n) -> (n,)."""
+    tk = theta * kappa
+    return safe_div(jnp.sum(tk * P, 0), jnp.sum(tk, 0), 0.0)
+
+
+def share_interface_force(I, m, m_min):
+    """(E13) I_nk - (m_nk / M_n) sum_j I_nj: sums to zero over fields at every node and vanishes
+    where one field is alone. I: (K, n, d), m: (K, n)."""
+    M = jnp.sum(m, 0)
+    share = safe_div(m, M[None], m_min)
+    return I - share[..., None] * jnp.sum(I, 0)[None]
+
+
+def drag_matrix(theta, rho, v, cd, length, k_lin):
+    """K_kj of (E3) per node (n, K, K), zero diagonal. theta, rho: (K, n); v: (K, n, d).
+    cd (or None: no quadratic term), length (m), k_lin (or None: no linear term)."""
+    tt = theta[:, None] * theta[None, :]                                      # (K, K, n)
+    Kmat = 0.0
+    if cd is not None:
+        dv = v[:, None] - v[None, :]                                          # (K, K, n, d)
+        speed = jnp.sqrt(jnp.sum(dv * dv, -1) + jnp.finfo(v.dtype).tiny)
+        rho_f = jnp.minimum(rho[:, None], rho[None, :])
+        Kmat = cd * tt * rho_f * speed / length
+    if k_lin is not None:
+        Kmat = Kmat + k_lin * tt
+    n_f = theta.shape[0]
+    off = 1.0 - jnp.eye(n_f, dtype=theta.dtype)
+    return jnp.moveaxis(Kmat * off[..., None], -1, 0)                         # (n, K, K)
+
+
+def exchange(m, v_star, Kmat, dt, V_n, m_min):
+    """(E3) implicit drag: solve m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k per node.
+    m: (K, n), v_star: (K, n, d), Kmat: (n, K, K), V_n: (n,). Returns the exchange force
+    F_k = -V_n sum_j K_kj (v_k - v_j) at the implicit velocities, (K, n, d) in N: momentum moves
+    only between fields (sum_k F_k = 0 to round-off) and the solve is stable for any drag."""
+    n_f = m.shape[0]
+    c = (dt * V_n)[:, None, None] * Kmat                                     # (n, K, K)
+    mt = m.T                                                                  # (n, K)
+    empty = mt <= m_min
+    if n_f == 2:
+        c12 = c[:, 0, 1]
+        a1 = jnp.where(empty[:, 0], 1.0, mt[:, 0])
+        a2 = jnp.where(empty[:, 1], 1.0, mt[:, 1])
+        c12 = jnp.where(empty[:, 0] | empty[:, 1], 0.0, c12)
+        det = a1 * a2 + c12 * (a1 + a2)
+        r1 = (mt[:, 0, None] * v_star[0])
+        r2 = (mt[:, 1, None] * v_star[1])
+        v1 = ((a2 + c12)[:, None] * r1 + c12[:, None] * r2) / det[:, None]
+        v2 = ((a1 + c12)[:, None] * r2 + c12[:, None] * r1) / det[:, None]
+        v = jnp.stack([v1, v2])
+    else:
+        c = jnp.where(empty[:, :, None] | empty[:, None, :], 0.0, c)
+        A = jnp.eye(n_f, dtype=m.dtype) * jnp.where(empty, 1.0, mt)[:, :, None] + (
+            jnp.eye(n_f, dtype=m.dtype) * jnp.sum(c, -1)[:, :, None] - c)
+        rhs = jnp.moveaxis(mt.T[..., None] * v_star, 0, 1)                   # (n, K, d)
+        v = jnp.moveaxis(jnp.linalg.solve(A, rhs), 1, 0)
+    dv = v[:, None] - v[None, :]                                              # (K, K, n, d)
+    F = -V_n[None, :, None] * jnp.sum(jnp.moveaxis(Kmat, 0, -1)[..., None] * dv, 1)
+    return jnp.where(empty.T[..., None], 0.0, F)
