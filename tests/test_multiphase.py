@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import jaxmpm
+import jaxmpm.materials.elastic
 from jaxmpm.scene import Box, Grid, Phase, Scene
 
 HEAVY = jaxmpm.Material.make("heavy", "linear_fluid", rho0=1000.0, K=1000.0)
@@ -84,3 +85,107 @@ def test_stiff_drag_is_stable_without_overshoot():
     assert dv[-1] < 1e-5 * dv[0]
     p0, p1 = np.asarray(jaxmpm.diagnostics.momentum(s0)), np.asarray(jaxmpm.diagnostics.momentum(final))
     np.testing.assert_allclose(p1, p0, rtol=0, atol=1e-12 * abs(p0).max())
+
+
+SOLID = jaxmpm.Material.make("solid", "linear_elastic", rho0=2000.0, E=1e7, nu=0.3)
+
+
+def _expanding_block(with_far_phase):
+    phases = [Phase("block", "solid", Box((0.3, 0.3), (0.6, 0.55)), field=0)]
+    if with_far_phase:   # a second field far away: the block stays alone in field 0
+        phases.append(Phase("far", "solid", Box((0.85, 0.05), (0.95, 0.15)), field=1))
+    return Scene(grid=Grid(cells=(20, 20), h=0.05), materials=(SOLID,), phases=tuple(phases),
+                 drag=1e4 if with_far_phase else None, t_end=5e-3, n_out=1)
+
+
+def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
+    finals, starts = [], []
+    for two in (False, True):
+        scene = _expanding_block(two)
+        params = jaxmpm.default_params(scene)
+        s0 = jaxmpm.init_state(scene, params)
+        blk = jaxmpm.state.phase_slices(scene)[0]
+        F = s0.F.at[blk].multiply(0.98)                   # the block is pre-compressed: it expands into the void
+        s0 = dataclasses.replace(s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["block"], F))
+        n = jaxmpm.plan_steps(scene, params, s0, scene.t_end)
+        finals.append(jaxmpm.simulate(scene, params, s0, n_steps=n)[0])
+        starts.append(s0)
+    one, two = finals
+    nb = one.x.shape[0]
+    assert float(jnp.max(jnp.abs(one.x - starts[0].x))) > 1e-4
+    np.testing.assert_allclose(np.asarray(two.x[:nb]), np.asarray(one.x), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(two.v[:nb]), np.asarray(one.v), rtol=0, atol=1e-11)
+
+
+def test_still_mixture_of_density_ratio_1000_stays_at_rest():
+    heavy = jaxmpm.Material.make("heavy", "hypoelastic", rho0=1000.0, E=2.2e9 * 3 * (1 - 2 * 0.3), nu=0.3)
+    light = jaxmpm.Material.make("light", "hypoelastic", rho0=1.0, E=1.4e5 * 3 * (1 - 2 * 0.3), nu=0.3)
+    box = Box((0.0, 0.0), (1.0, 1.0))
+    walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
+    scene = Scene(grid=Grid(cells=(8, 8), h=0.125), materials=(heavy, light), boundary=walls,
+                  phases=(Phase("water", "heavy", box, field=0, fraction=0.5), Phase("air", "light", box, field=1, fraction=0.5)),
+                  drag=1.0, t_end=1.0, n_out=1)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    p0 = 1.0e5
+    s0 = dataclasses.replace(s0, stress=-p0 * jnp.broadcast_to(jnp.eye(2), s0.stress.shape))
+    step = jax.jit(jaxmpm.make_step(scene))
+    s = jax.lax.fori_loop(0, 1000, lambda i, s: step(params, s), s0)
+    c_min = float(jnp.min(jaxmpm.step.wave_speed(scene, params, s0)))
+    assert float(s.t) > 0
+    assert float(jnp.max(jnp.abs(s.v))) < 1e-8 * c_min
+    np.testing.assert_allclose(np.asarray(s.stress[:, 0, 0]), -p0, rtol=1e-10)
+
+
+def test_one_field_scene_traces_no_exchange_or_interface_code():
+    one = Scene(grid=Grid(cells=(10,), h=0.1), materials=(HEAVY,), phases=(Phase("a", "heavy", Box((0.2,), (0.6,))),),
+                drag=1.0, linear_drag=1.0)
+    two = mixture(drag=1.0, linear_drag=1.0)
+    for scene, expect in ((one, False), (two, True)):
+        params = jaxmpm.default_params(scene)
+        state = jaxmpm.init_state(scene, params)
+        closed = jax.make_jaxpr(jaxmpm.make_step(scene))(params, state)
+        leaves = jax.tree.leaves((params, state))
+        for leaf in (params.drag_coefficient, params.drag_length, params.linear_drag):
+            var = closed.jaxpr.invars[[i for i, a in enumerate(leaves) if a is leaf][0]]
+            assert any(var in e.invars for e in closed.jaxpr.eqns) == expect
+    no_if = dataclasses.replace(two, interface_forces=False)
+    n = lambda s: len(jax.make_jaxpr(jaxmpm.make_step(s))(jaxmpm.default_params(s), jaxmpm.init_state(s, jaxmpm.default_params(s))).jaxpr.eqns)
+    assert n(two) > n(no_if)
+
+
+def test_grad_wrt_drag_coefficient_matches_central_difference():
+    scene = mixture(drag=1000.0)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    sl = jaxmpm.state.phase_slices(scene)
+
+    def light_speed(cd):
+        p = dataclasses.replace(params, drag_coefficient=cd)
+        final = jaxmpm.simulate(scene, p, s0, t_end=0.3, n_steps=30, dt=0.01)[0]
+        return jnp.mean(final.v[sl[1], 0])
+
+    f = jax.jit(light_speed)
+    cd = jnp.asarray(1000.0)
+    g = float(jax.grad(light_speed)(cd))
+    fd = float((f(cd * (1 + 1e-5)) - f(cd * (1 - 1e-5))) / (2e-5 * cd))
+    assert g < 0
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(drag=-1.0), r"effects\.drag = -1\.0 is invalid: allowed >= 0"),
+    (dict(linear_drag=-2.0), r"effects\.linear_drag = -2\.0 is invalid: allowed >= 0"),
+    (dict(drag_length=0.0), r"effects\.drag_length = 0\.0 is invalid: allowed > 0 m"),
+    (dict(shape="bspline2"), r"shape = 'bspline2' is invalid: allowed 'ddmp' or 'linear'"),
+])
+def test_bad_multiphase_input(kw, match):
+    with pytest.raises(ValueError, match=match):
+        dataclasses.replace(mixture(drag=1.0), **kw)
+
+
+def test_phase_in_a_field_that_does_not_exist():
+    box = Box((0.0,), (1.0,))
+    with pytest.raises(ValueError, match=r"phase\.light\.field = 2 is invalid: allowed fields numbered 0\.\.1 without gaps"):
+        Scene(grid=Grid(cells=(10,), h=0.1), materials=(HEAVY, LIGHT),
+              phases=(Phase("heavy", "heavy", box, field=0), Phase("light", "light", box, field=2)))
