@@ -17,7 +17,7 @@ Rows:
                             from the previous one (the peers also time steps after the warm-up).
   jaxmpm+ynn                the same with XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= (empty value;
                             design/PERFORMANCE.md reports it helps on CPU).
-  jaxmpm-linear/-ddmp-seed  the same particles with shape 'linear' / 'ddmp' and the seed transfer.
+  jaxmpm-linear/-ddmp-musl  the same particles with shape 'linear' / 'ddmp' and the default musl update.
 A run is "stable" when, after all (1 + repeats) * steps steps (2D defaults: t = 0.4 s; the block hits
 the floor at ~0.16 s), every state value is finite, all particles are in the grid, max |v| < 10 m/s
 (free fall from the block's top gives ~3.3 m/s, the splash ~7 m/s) and the total energy (kinetic +
@@ -57,8 +57,8 @@ YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
 JAXMPM = {
     "jaxmpm": ("bspline2", "apic", None),
     "jaxmpm+ynn": ("bspline2", "apic", YNN_FLAG),
-    "jaxmpm-linear-seed": ("linear", "seed", None),
-    "jaxmpm-ddmp-seed": ("ddmp", "seed", None),
+    "jaxmpm-linear-musl": ("linear", "musl", None),
+    "jaxmpm-ddmp-musl": ("ddmp", "musl", None),
 }
 # peer configurations: name -> (script, module it needs, extra XLA flag or None, dims it covers)
 PEERS = {

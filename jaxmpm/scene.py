@@ -20,7 +20,7 @@ from typing import Any, Mapping
 from jaxmpm.materials import Material, resolve_material
 
 SHAPES = ("linear", "ddmp", "bspline2")
-TRANSFERS = ("seed", "seed_halfstep", "apic")
+TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
 BOUNDARIES = ("free", "slip", "fixed")
 AXES = "xyz"
 
@@ -255,10 +255,10 @@ class Scene:
     Fields:
       grid: Grid. phases: tuple of Phase. materials: user materials by key (tuple of Material).
       shape: 'ddmp' (default; linear hat with the DDMP gradient, PHYSICS 2.2), 'linear' (standard MPM)
-        or 'bspline2' (quadratic B-spline). transfer: 'seed' (PHYSICS 2.1 step 4 with the remap;
-        particles move with the full-step nodal velocity, second order), 'seed_halfstep' (the seed's
-        literal half-step acceleration term in the position update, first order in time) or
-        'apic' (affine PIC / MLS, requires 'bspline2').
+        or 'bspline2' (quadratic B-spline). transfer: 'musl' (default: the seed's update with the
+        remap done at the step's own positions), 'seed' (remap at the new positions),
+        'seed_halfstep' (the seed's literal half-step position term) -- see jaxmpm.step.seed_update
+        for what each does and measures -- or 'apic' (affine PIC / MLS, requires 'bspline2').
       gravity: gravity acceleration (m/s^2, one per axis), or None for no gravity term.
       gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
       damping: mass-proportional nodal damping rate (1/s), or None for no damping term.
@@ -274,7 +274,7 @@ class Scene:
     phases: tuple[Phase, ...]
     materials: tuple[Material, ...] = ()
     shape: str = "ddmp"
-    transfer: str = "seed"
+    transfer: str = "musl"
     gravity: tuple[float, ...] | None = None
     gravity_ramp: float = 0.0
     damping: float | None = None
@@ -350,7 +350,7 @@ class Scene:
         if not isinstance(self.interface_forces, bool):
             _fail("effects.interface_forces", self.interface_forces, "true | false")
         if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
-            _fail("shape", self.shape, "'ddmp' or 'linear' with the 'seed' transfer when phases use several velocity fields")
+            _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
         if not isinstance(self.boundary, Boundary):
             _fail("boundary", self.boundary, "a Boundary")
         cfl = _floats("cfl", self.cfl, 1)[0]

@@ -119,7 +119,7 @@ def scene_from_dict(d: Mapping) -> Scene:
 
     kw = {}
     for k, types, allowed in (("name", (str,), "a string"), ("description", (str,), "a string"),
-                              ("shape", (str,), "ddmp | linear | bspline2"), ("transfer", (str,), "seed | seed_halfstep | apic"),
+                              ("shape", (str,), "ddmp | linear | bspline2"), ("transfer", (str,), "musl | seed | seed_halfstep | apic"),
                               ("cfl", (int, float), "a number in (0, 1]"), ("t_end", (int, float), "a number > 0 s")):
         if k in d:
             kw[k] = _typed(d[k], types, k, allowed)

@@ -243,10 +243,10 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if scene.has_exchange:
         F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
         a = _apply_bc(lay, a + _safe_div(F, m, m_min))
-    return v, a
+    return v, a, dg
 
 
-def particle_velocity_gradient(lay, st, v, nodal_volume=None):
+def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None):
     """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
     (nodal_volume (K, n_nodes) = sum_p V_p S_np given) the blend (E12):
     L_p = beta_p sum_i v_i (x) grad S_i(x_p) + (1 - beta_p) sum_j S_j(x_p) L-bar_j. Returns (N, d, d)."""
@@ -255,28 +255,21 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None):
     if nodal_volume is None:
         return L
     beta = ddmp_beta(st.xi)
-    dg = ddmp_operators(lay, st, nodal_volume, v.dtype)
+    dg = ddmp_operators(lay, st, nodal_volume, v.dtype) if dg is None else dg
     Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(_grid_shape(lay) + (d,)))
     Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
     return beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar                  # (E12)
 
 
 def velocity_gradient(lay, params, st, state, dt, m_min):
-    """Stage 4b: remap the particle momentum onto the grid at the new positions (seed:
-    m_n v_n = sum_p m_p v_p S_n(x_p^new)), walls applied, with several fields the implicit exchange
-    applied again to the remapped velocities (E14), then L_p (N, d, d)."""
-    d = lay.dim
-    w = st.w[..., None]
-    parts = {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * state.v)[:, None, :]}
+    """Stage 4b of the 'seed' variants: remap at the new positions (with E14 between coupled
+    fields), then L_p (N, d, d) there."""
     ddmp_on = lay.scene.shape == "ddmp"
+    vol_n = None
     if ddmp_on or lay.scene.has_exchange:
-        parts["vol"] = w * state.volume[:, None, None]
-    g = _scatter_named(lay, st, parts)
-    v = _apply_bc(lay, _safe_div(g["mv"], g["m"], m_min))
-    if lay.scene.has_exchange:                                                           # (E14)
-        F = exchange_force(lay, params, g["m"][..., 0], g["vol"][..., 0], v, dt, m_min)
-        v = _apply_bc(lay, v + dt * _safe_div(F, g["m"], m_min))
-    return particle_velocity_gradient(lay, st, v, g["vol"][..., 0] if ddmp_on else None)
+        vol_n = scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)[..., 0]
+    v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
+    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None)
 
 
 def constitutive(lay, params, state, L, dt):
@@ -297,34 +290,55 @@ def constitutive(lay, params, state, L, dt):
     return F, sig, vol, energy
 
 
-def seed_update(lay, params, state, dt):
-    """One step of the seed's update (PHYSICS 2.1 step 4) with linear, DDMP or B-spline gradients.
+def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
+    """Remap particle velocities v_p onto the nodes of stencil st: v_n = sum m_p v_p S_np / m_n,
+    walls applied; with several coupled fields the implicit exchange applied again (E14).
+    vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d)."""
+    w = st.w[..., None]
+    g = _scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
+    v = _apply_bc(lay, _safe_div(g["mv"], g["m"], m_min))
+    if lay.scene.has_exchange:                                                           # (E14)
+        F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
+        v = _apply_bc(lay, v + dt * _safe_div(F, g["m"], m_min))
+    return v
 
-    v_p += dt sum_n a_n S_np; x_p += dt sum_n (v_n + h_a a_n dt) S_np; remap at the new positions;
-    L_p from the remapped velocity; stress update. The seed's literal term h_a = 1/2
-    (transfer = 'seed_halfstep') moves particles with a velocity other than the one whose gradient
-    drives the stress, so positions and F drift apart at O(dt): on the vibrating bar (CFL 0.02,
-    50 cells) its displacement error is 3.6e-7 m and first order in dt, while h_a = 1
-    (transfer = 'seed', the default: positions and stress driven by the same v_old + a dt, a
-    staggered leapfrog) gives 1.6e-8 m and second order in space (tests/test_vibrating_bar.py).
+
+def seed_update(lay, params, state, dt):
+    """One explicit step with the seed's update (PHYSICS 2.1 step 4) and linear, DDMP or B-spline
+    gradients: v_p += dt sum_n a_n S_np, a remap of the particle momentum to the grid, and the
+    stress driven by the gradient of the remapped velocity. Three variants (scene.transfer):
+
+      'musl' (default): remap at the positions of this step, v_n = sum m_p v_p^new S_np / m_n;
+        particles move with it, x_p += dt sum_n v_n S_np, and L_p is its gradient at the same
+        positions with the same operators as the force (E11/E12 adjoint). Positions, F and stress
+        follow one velocity field; a contact dissipates (inelastic merge of nodal momenta).
+      'seed': remap at the new positions (the seed's m_i u_i = sum m_p u_p S_i(x_p^new)),
+        x_p += dt sum_n (v_n + a_n dt) S_np. A 200 m/s single-field impact GAINS 10% energy at
+        CFL 0.3 with it (1.5% at CFL 0.05), 'musl' loses 6%: tests/test_update_schemes.py.
+      'seed_halfstep': as 'seed' with the seed's literal x_p += dt sum (v_n + a_n dt / 2) S_np,
+        which moves particles with a velocity other than the one driving the stress: first order
+        in dt (vibrating bar at CFL 0.02, 50 cells: 3.6e-7 m against 1.6e-8 m).
     """
     scene = lay.scene
+    d = lay.dim
     m_min = _mass_floor(state)
     st = stencil(scene, state.x)                                                   # 1
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     g = particle_to_grid(lay, params, st, state, beta)                             # 2
     acc_p = body_acceleration(lay, params, state)
-    v_n, a_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
-    # 4: seed_halfstep moves particles with v_old + a dt / 2 (the seed's literal term); seed moves them
-    # with v_old + a dt, the velocity whose gradient drives the stress (second order; see seed_update).
-    half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
-    va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
-    d = lay.dim
-    v = state.v + dt * va[:, :d]
-    x = state.x + dt * va[:, d:]
-    moved = replace(state, x=x, v=v)
-    st2 = stencil(scene, x)
-    L = velocity_gradient(lay, params, st2, moved, dt, m_min)
+    v_n, a_n, dg = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
+    if scene.transfer == "musl":                                                   # 4
+        v = state.v + dt * interpolate(st, lay.field, a_n)
+        vol_n = g["vol"][..., 0] if "vol" in g else None
+        v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
+        x = state.x + dt * interpolate(st, lay.field, v_r)
+        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg)
+        moved = replace(state, x=x, v=v)
+    else:
+        half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
+        va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
+        moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
+        L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
     F, sig, vol, energy = constitutive(lay, params, moved, L, dt)                  # 5
     return replace(moved, t=state.t + dt, F=F, stress=sig, volume=vol, energy=energy)
 
