@@ -26,6 +26,31 @@ def safe_div(a, b, bmin):
     return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
 
 
+def solve_small(A, b):
+    """Solve A x = b for many small systems by Gaussian elimination without pivoting, unrolled
+    (A: (..., n, n) symmetric positive definite or diagonally dominant, n <= 4; b: (..., n, k)).
+    Returns (x, det A). Batched LAPACK calls are slow for millions of tiny systems on the CPU; this
+    is a handful of fused elementwise operations. Singular rows give non-finite x: guard outside."""
+    n = A.shape[-1]
+    rows = [A[..., i, :] for i in range(n)]
+    rhs = [b[..., i, :] for i in range(n)]
+    det = jnp.ones(A.shape[:-2], A.dtype)
+    for i in range(n):
+        piv = rows[i][..., i]
+        det = det * piv
+        for j in range(i + 1, n):
+            f = rows[j][..., i] / piv
+            rows[j] = rows[j] - f[..., None] * rows[i]
+            rhs[j] = rhs[j] - f[..., None] * rhs[i]
+    x = [None] * n
+    for i in reversed(range(n)):
+        acc = rhs[i]
+        for j in range(i + 1, n):
+            acc = acc - rows[i][..., j, None] * x[j]
+        x[i] = acc / rows[i][..., i, None]
+    return jnp.stack(x, -2), det
+
+
 def lsq_moments(st, pressure, volume):
     """Per-particle, per-stencil-node contributions (N, S, C) for the linear fit (E15):
     w, w r, w r r^T, w p, w p r with w = V_p S_np and r = x_p - x_n. C = 2 + 2 d + d^2."""
@@ -53,10 +78,11 @@ def lsq_nodal_pressure(moments, d, h):
     scale = jnp.concatenate([jnp.ones(1, M.dtype), jnp.full((d,), 1.0 / h, M.dtype)])
     Ms = M * scale[:, None] * scale[None, :]
     wmin = 1e-12 * jnp.max(w)
-    det = jnp.linalg.det(Ms)
-    ok = (w > wmin) & (jnp.abs(det) > 1e-6 * jnp.maximum(w, wmin) ** (d + 1))
     eye = jnp.eye(d + 1, dtype=M.dtype)
-    sol = jnp.linalg.solve(jnp.where(ok[..., None, None], Ms, eye), (rhs * scale)[..., None])[..., 0]
+    safe = jnp.where((w > wmin)[..., None, None], Ms, eye)
+    _, det = solve_small(safe, jnp.zeros(safe.shape[:-1] + (1,), M.dtype))
+    ok = (w > wmin) & (jnp.abs(det) > 1e-6 * jnp.maximum(w, wmin) ** (d + 1))
+    sol = solve_small(jnp.where(ok[..., None, None], Ms, eye), (rhs * scale)[..., None])[0][..., 0]
     average = safe_div(wp, w, wmin)
     return jnp.where(ok, sol[..., 0], average)
 
@@ -117,7 +143,7 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min):
         A = jnp.eye(n_f, dtype=m.dtype) * jnp.where(empty, 1.0, mt)[:, :, None] + (
             jnp.eye(n_f, dtype=m.dtype) * jnp.sum(c, -1)[:, :, None] - c)
         rhs = jnp.moveaxis(mt.T[..., None] * v_star, 0, 1)                   # (n, K, d)
-        v = jnp.moveaxis(jnp.linalg.solve(A, rhs), 1, 0)
+        v = jnp.moveaxis(solve_small(A, rhs)[0], 1, 0)
     dv = v[:, None] - v[None, :]                                              # (K, K, n, d)
     F = -V_n[None, :, None] * jnp.sum(jnp.moveaxis(Kmat, 0, -1)[..., None] * dv, 1)
     return jnp.where(empty.T[..., None], 0.0, F)

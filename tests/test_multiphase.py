@@ -215,3 +215,36 @@ def test_glued_bar_in_two_fields_matches_one_field():
     assert np.abs(E2 / E2[0] - 1).max() < 0.05
     assert np.abs(s2 - s1).max() < 0.05 * np.abs(s1).max()
     assert np.abs(s1).max() > 0.5e9      # the cut carries the bar's stress waves
+
+
+def test_small_solver_matches_lapack():
+    from jaxmpm.fields import solve_small
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 4):
+        B = rng.normal(size=(50, n, n))
+        A = B @ np.swapaxes(B, 1, 2) + n * np.eye(n)
+        b = rng.normal(size=(50, n, 2))
+        x, det = solve_small(jnp.asarray(A), jnp.asarray(b))
+        np.testing.assert_allclose(np.asarray(x), np.linalg.solve(A, b), rtol=1e-10)
+        np.testing.assert_allclose(np.asarray(det), np.linalg.det(A), rtol=1e-10)
+
+
+def test_three_field_exchange_conserves_momentum_and_reduces_to_two_fields():
+    from jaxmpm.fields import drag_matrix, exchange
+    rng = np.random.default_rng(1)
+    n, d, dt = 7, 2, 1e-3
+    m = jnp.asarray(rng.uniform(0.5, 2.0, size=(3, n)))
+    vol = jnp.asarray(rng.uniform(0.2, 0.5, size=(3, n)))
+    v = jnp.asarray(rng.normal(size=(3, n, d)))
+    V_n = jnp.ones(n)
+    K = drag_matrix(vol, m / vol, v, 50.0, 0.1, 3.0)
+    F = exchange(m, v, K, dt, V_n, 1e-30)
+    np.testing.assert_allclose(np.asarray(jnp.sum(F, 0)), 0.0, atol=1e-12 * float(jnp.abs(F).max()))
+    assert float(jnp.abs(F).max()) > 0
+    # the third field empty: the general K x K solve equals the closed form for two fields
+    m3 = m.at[2].set(0.0)
+    vol3 = vol.at[2].set(0.0)
+    F3 = exchange(m3, v, drag_matrix(vol3, jnp.where(vol3 > 0, m3 / jnp.where(vol3 > 0, vol3, 1), 0), v, 50.0, 0.1, 3.0), dt, V_n, 1e-30)
+    F2 = exchange(m[:2], v[:2], drag_matrix(vol[:2], m[:2] / vol[:2], v[:2], 50.0, 0.1, 3.0), dt, V_n, 1e-30)
+    np.testing.assert_allclose(np.asarray(F3[:2]), np.asarray(F2), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(F3[2]), 0.0, atol=0)

@@ -1,0 +1,89 @@
+"""Cost of a multi-velocity step: the same particles grouped into 1, 2 and 3 velocity fields.
+
+Scene: a 2D impact of three elastic blocks (a striker, a plate, a backing block) on a 128^2 grid,
+2 x 2 particles per cell, DDMP, the default update; with 2 and 3 fields the exchange (E3, E14) and
+the interface forces (E6, E13, E15) are on. Prints microseconds per step and per particle-step and
+the ratio to one field; writes benchmarks/results/multifield_cost.csv.
+
+    python benchmarks/multifield_cost.py [--steps 100] [--repeats 3] [--x64]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import os
+import platform
+import statistics
+import time
+
+import jax
+
+
+def scene_for(n_fields, n_grid):
+    import jaxmpm
+    from jaxmpm.scene import Box, Grid, Phase, Scene
+
+    mat = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.33)
+    groups = {1: (0, 0, 0), 2: (0, 1, 1), 3: (0, 1, 2)}[n_fields]
+    phases = (Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=groups[0]),
+              Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=groups[1]),
+              Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=groups[2]))
+    return Scene(grid=Grid(cells=(n_grid, n_grid), h=1.0 / n_grid), materials=(mat,), phases=phases,
+                 drag=1e3 if n_fields > 1 else None, name=f"impact_{n_fields}_fields")
+
+
+def measure(n_fields, n_grid, steps, repeats):
+    import jaxmpm
+
+    scene = scene_for(n_fields, n_grid)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    step = jaxmpm.make_step(scene)
+    run = jax.jit(lambda p, s: jax.lax.scan(lambda c, _: (step(p, c), None), s, None, length=steps)[0])
+    t0 = time.perf_counter()
+    state = jax.block_until_ready(run(params, state))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        state = jax.block_until_ready(run(params, state))
+        times.append(time.perf_counter() - t0)
+    sec = statistics.median(times)
+    n = state.x.shape[0]
+    finite = bool(jax.numpy.all(jax.numpy.isfinite(state.x)))
+    return dict(fields=n_fields, particles=n, steps=steps, seconds=sec, us_per_step=1e6 * sec / steps,
+                ns_per_particle_step=1e9 * sec / steps / n, compile_s=compile_s, finite=finite)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-grid", type=int, default=128)
+    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--x64", action="store_true")
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "multifield_cost.csv"))
+    a = ap.parse_args()
+    if a.x64:
+        jax.config.update("jax_enable_x64", True)
+    rows = [measure(k, a.n_grid, a.steps, a.repeats) for k in (1, 2, 3)]
+    base = rows[0]["ns_per_particle_step"]
+    print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {jax.devices()[0]}, "
+          f"{os.cpu_count()} CPUs, jax {jax.__version__}")
+    print(f"{'fields':>6} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} {'x 1 field':>9} {'finite':>6}")
+    for r in rows:
+        r["ratio_to_1_field"] = r["ns_per_particle_step"] / base
+        print(f"{r['fields']:>6} {r['particles']:>9} {r['us_per_step']:>9.0f} {r['ns_per_particle_step']:>12.1f} "
+              f"{r['ratio_to_1_field']:>9.2f} {str(r['finite']):>6}")
+    os.makedirs(os.path.dirname(a.out), exist_ok=True)
+    with open(a.out, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["device", "cpus", "jax", "python"])
+        w.writeheader()
+        for r in rows:
+            w.writerow({**r, "device": str(jax.devices()[0]), "cpus": os.cpu_count(), "jax": jax.__version__,
+                        "python": platform.python_version()})
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
