@@ -147,3 +147,12 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min):
     dv = v[:, None] - v[None, :]                                              # (K, K, n, d)
     F = -V_n[None, :, None] * jnp.sum(jnp.moveaxis(Kmat, 0, -1)[..., None] * dv, 1)
     return jnp.where(empty.T[..., None], 0.0, F)
+
+
+def ambient_pressure(theta, kappa, P):
+    """Common pressure (E6) of the OTHER fields at each node, (K, n): the ambient pressure the
+    fragmented part of field k relaxes to (E8); 0 where no other field is present."""
+    tk = theta * kappa
+    num = jnp.sum(tk * P, 0)[None] - tk * P
+    den = jnp.sum(tk, 0)[None] - tk
+    return safe_div(num, den, 1e-30 * jnp.max(den))

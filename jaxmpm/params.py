@@ -9,6 +9,7 @@
     params.drag_coefficient               () C_d of the exchange (E3), dimensionless (read only with scene.drag)
     params.drag_length                    () d of (E3), m (default: the cell size h)
     params.linear_drag                    () K_lin of the linear drag term, kg/(m^3 s) (only with scene.linear_drag)
+    params.c_h                            () C_h of the closure alpha = 1 - tanh(eps_ps / C_h) (E5; only with scene.c_h)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
 """
@@ -35,6 +36,7 @@ class Params:
     drag_coefficient: jax.Array
     drag_length: jax.Array
     linear_drag: jax.Array
+    c_h: jax.Array
 
     def with_constant(self, phase: str, name: str, value) -> "Params":
         """A copy with params.phases[phase][name] = value."""
@@ -49,7 +51,7 @@ class Params:
 
 jax.tree_util.register_dataclass(
     Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl", "drag_coefficient",
-                         "drag_length", "linear_drag"], meta_fields=[])
+                         "drag_length", "linear_drag", "c_h"], meta_fields=[])
 
 
 def default_params(scene, dtype=None) -> Params:
@@ -68,6 +70,7 @@ def default_params(scene, dtype=None) -> Params:
         drag_coefficient=f(scene.drag if scene.drag is not None else 0.0),
         drag_length=f(scene.drag_length if scene.drag_length is not None else scene.grid.h),
         linear_drag=f(scene.linear_drag if scene.linear_drag is not None else 0.0),
+        c_h=f(scene.c_h if scene.c_h is not None else 1.0),
     )
 
 
@@ -106,7 +109,7 @@ def check_params(scene, params: Params) -> None:
         unused.append("drag_coefficient (the scene has no drag)")
     if scene.linear_drag is None and _is_concrete(params.linear_drag) and np.any(np.asarray(params.linear_drag) != 0):
         unused.append("linear_drag (the scene has no linear drag)")
-    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False)):
+    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False), ("c_h", True)):
         val = getattr(params, name)
         if _is_concrete(val):
             a = np.asarray(val)

@@ -267,6 +267,8 @@ class Scene:
         drag. drag_length: the length d of (E3) in m (None: the cell size h). linear_drag: K_lin of
         the optional linear term in kg/(m^3 s), or None. interface_forces: the common-pressure
         interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields).
+      c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
+        for no closure (material volume follows the velocity divergence).
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
@@ -283,6 +285,7 @@ class Scene:
     drag_length: float | None = None
     linear_drag: float | None = None
     interface_forces: bool = True
+    c_h: float | None = None
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
@@ -347,8 +350,15 @@ class Scene:
                 if val < 0 or (positive and val == 0):
                     _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
                 object.__setattr__(self, name, val)
+        if self.c_h is not None:
+            ch = _floats("effects.c_h", self.c_h, 1)[0]
+            if not ch > 0:
+                _fail("effects.c_h", ch, "> 0")
+            object.__setattr__(self, "c_h", ch)
         if not isinstance(self.interface_forces, bool):
             _fail("effects.interface_forces", self.interface_forces, "true | false")
+        if self.c_h is not None and self.transfer == "apic":
+            _fail("effects.c_h", self.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
         if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
             _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
         if not isinstance(self.boundary, Boundary):

@@ -42,7 +42,7 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces")
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h")
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
 
@@ -126,7 +126,7 @@ def scene_from_dict(d: Mapping) -> Scene:
     if "gravity" in e:
         grav = e["gravity"]
         kw["gravity"] = tuple(grav) if isinstance(grav, list) else grav
-    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag"):
+    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag", "c_h"):
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     for k in ("body_force", "interface_forces"):
@@ -153,7 +153,7 @@ def scene_to_dict(scene: Scene) -> dict:
         e["damping"] = scene.damping
     if scene.body_force:
         e["body_force"] = True
-    for k in ("drag", "drag_length", "linear_drag"):
+    for k in ("drag", "drag_length", "linear_drag", "c_h"):
         if getattr(scene, k) is not None:
             e[k] = getattr(scene, k)
     if not scene.interface_forces:

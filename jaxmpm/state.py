@@ -12,6 +12,7 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
     stress  (N, d, d) Cauchy stress, Pa (tension positive)
     energy  (N,)      specific internal energy, J/kg
     C       (N, d, d) APIC affine velocity matrix, 1/s (only with transfer = 'apic'; else None)
+    eps_ps  (N,)      accumulated equivalent plastic strain (drives the alpha closure, E5)
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ class State:
     stress: jax.Array
     energy: jax.Array
     C: jax.Array | None = None
+    eps_ps: jax.Array | None = None
 
     @property
     def n_particles(self) -> int:
@@ -42,7 +44,7 @@ class State:
 
 
 jax.tree_util.register_dataclass(
-    State, data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C"], meta_fields=[])
+    State, data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C", "eps_ps"], meta_fields=[])
 
 
 @functools.lru_cache(maxsize=64)
@@ -111,7 +113,7 @@ def init_state(scene, params) -> State:
     eye = jnp.broadcast_to(jnp.eye(d, dtype=dtype), (n, d, d))
     C = jnp.zeros((n, d, d), dtype) if scene.transfer == "apic" else None
     return State(t=jnp.zeros((), dtype), x=x, v=v, mass=m, volume=vol, F=eye,
-                 stress=jnp.zeros((n, d, d), dtype), energy=jnp.zeros(n, dtype), C=C)
+                 stress=jnp.zeros((n, d, d), dtype), energy=jnp.zeros(n, dtype), C=C, eps_ps=jnp.zeros(n, dtype))
 
 
 def stencil_offsets(dim: int, width: int) -> np.ndarray:

@@ -103,7 +103,9 @@ def wave_speed(scene, params, state):
 def cfl_time_step(scene, params, state, cfl=None):
     """dt = CFL h / max_p (c_p + |v_p|) (PHYSICS 2.1), s."""
     cfl = params.cfl if cfl is None else cfl
-    speed = wave_speed(scene, params, state) + jnp.linalg.norm(state.v, axis=-1)
+    v2 = jnp.sum(state.v * state.v, axis=-1)
+    moving = v2 > 0
+    speed = wave_speed(scene, params, state) + jnp.where(moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0)  # finite grad at rest
     return cfl * scene.grid.h / jnp.max(speed)
 
 
@@ -163,6 +165,22 @@ def phase_pressure_and_compressibility(lay, params, state):
     return -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim, kappa
 
 
+def closure_alpha(params, state):
+    """(E5) alpha = 1 - tanh(eps_ps / C_h): 1 for intact material, -> 0 when fragmented. (N,)"""
+    return 1.0 - jnp.tanh(state.eps_ps / params.c_h)
+
+
+def force_stress(lay, params, state):
+    """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the isotropic part
+    scaled by alpha, sigma + (1 - alpha) p I, so a fragmented material does no work through a
+    volume change it does not have."""
+    if lay.scene.c_h is None:
+        return state.stress
+    d = lay.dim
+    p = -jnp.trace(state.stress, axis1=1, axis2=2) / d
+    return state.stress + ((1 - closure_alpha(params, state)) * p)[:, None, None] * jnp.eye(d, dtype=p.dtype)
+
+
 def particle_to_grid(lay, params, st, state, beta):
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
     (nodal volume, stress share) and the multi-field stage (E15 fit moments, compressibility) need.
@@ -170,7 +188,7 @@ def particle_to_grid(lay, params, st, state, beta):
     m, v, V = state.mass, state.v, state.volume
     w = st.w[..., None]
     parts = {"m": w * m[:, None, None], "mv": w * (m[:, None] * v)[:, None, :]}
-    parts.update(_stress_parts(st, V, beta, state.stress))
+    parts.update(_stress_parts(st, V, beta, force_stress(lay, params, state)))
     if beta is not None or lay.n_fields > 1:
         parts["vol"] = w * V[:, None, None]
     if lay.scene.has_interface_forces:
@@ -194,7 +212,9 @@ def _node_volume(lay, dtype):
 def interface_force(lay, st, beta, state, g, dg, m_min):
     """(E13) interface forces between fields from the common pressure (E6, E15), (K, n_nodes, d):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
-    minus the mass-fraction share of the net, so they sum to zero at each node."""
+    minus the mass-fraction share of the net, so they sum to zero at each node. Also returns the
+    ambient pressure of each field (the common pressure of the others, (K, n_nodes)) for the
+    closure (E8), or None without it."""
     d, h = lay.dim, lay.scene.grid.h
     dtype = state.mass.dtype
     vol = g["vol"][..., 0]
@@ -207,7 +227,8 @@ def interface_force(lay, st, beta, state, g, dg, m_min):
     I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso)))
     grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
     I = I - grad_p.reshape(I.shape)
-    return fields.share_interface_force(I, g["m"][..., 0], m_min)
+    p_amb = fields.ambient_pressure(theta, kappa, P) if lay.scene.c_h is not None else None
+    return fields.share_interface_force(I, g["m"][..., 0], m_min), p_amb
 
 
 def exchange_force(lay, params, m, vol, v, dt, m_min):
@@ -224,15 +245,18 @@ def exchange_force(lay, params, m, vol, v, dt, m_min):
 
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
-    internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3)."""
+    internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
+    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
     v = _apply_bc(lay, _safe_div(g["mv"], m, m_min))
     f = _nodal_stress_force(lay, dg, g)
+    p_amb = None
     if scene.has_interface_forces:
-        f = f + interface_force(lay, st, beta, state, g, dg, m_min)
+        I, p_amb = interface_force(lay, st, beta, state, g, dg, m_min)
+        f = f + I
     if acc_p is not None:
         f = f + scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
                         lay.n_fields, lay.n_nodes)
@@ -243,7 +267,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if scene.has_exchange:
         F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
         a = _apply_bc(lay, a + _safe_div(F, m, m_min))
-    return v, a, dg
+    return v, a, dg, p_amb
 
 
 def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None):
@@ -272,20 +296,49 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None)
 
 
-def constitutive(lay, params, state, L, dt):
-    """Stage 5: per phase, its model's stress update; volume V *= exp(dt tr L); internal energy
-    de = dt V sigma:D / m with midpoint stress and volume."""
+def material_volume_rate(lay, params, state, L, dt, p_amb):
+    """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
+    B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
+    relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s."""
     scene = lay.scene
+    alpha = closure_alpha(params, state)
+    rho = state.mass / state.volume
+    K, c = [], []
+    for p, sl in zip(scene.phases, lay.slices):
+        model = MODELS[scene.material(p).model]
+        K.append(model.bulk_modulus(params.phases[p.name], rho[sl], lay.dim))
+        c.append(model.wave_speed(params.phases[p.name], rho[sl], lay.dim) * jnp.ones_like(rho[sl]))
+    K, c = jnp.concatenate(K), jnp.concatenate(c)
+    tau = scene.grid.h / c
+    p = -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim
+    x = dt / tau
+    relax = jnp.where(x > 1e-8, -jnp.expm1(-x) / jnp.where(x > 1e-8, x, 1.0), 1.0) / tau
+    B = (1 - alpha) * (p - p_amb) / K * relax
+    return alpha * jnp.trace(L, axis1=1, axis2=2) + B
+
+
+def constitutive(lay, params, state, L, dt, p_amb=None):
+    """Stage 5: per phase, its model's stress update; volume V *= exp(dt tr L) (or the material
+    rate of the closure, E4); internal energy de = dt V sigma_f:D / m with midpoint values, sigma_f
+    the stress the grid sees (with the closure the energy its relaxation releases stays as heat)."""
+    scene = lay.scene
+    d = lay.dim
+    L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
+    if scene.c_h is not None:
+        p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
+        rate = material_volume_rate(lay, params, state, L, dt, p_amb)
+        L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
     Fs, sigs = [], []
     for p, sl in zip(scene.phases, lay.slices):
         model = MODELS[scene.material(p).model]
-        F, sig = model.update(params.phases[p.name], state.F[sl], state.stress[sl], L[sl], dt)
+        F, sig = model.update(params.phases[p.name], state.F[sl], state.stress[sl], L_mat[sl], dt)
         Fs.append(F)
         sigs.append(sig)
     F, sig = jnp.concatenate(Fs), jnp.concatenate(sigs)
-    vol = state.volume * jnp.exp(dt * jnp.trace(L, axis1=1, axis2=2))
+    vol = state.volume * jnp.exp(dt * rate)
     D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
-    power = jnp.sum(0.5 * (sig + state.stress) * D, axis=(1, 2)) * 0.5 * (vol + state.volume)
+    sig_f = 0.5 * (force_stress(lay, params, state) + force_stress(lay, params, replace(state, stress=sig)))
+    power = jnp.sum(sig_f * D, axis=(1, 2)) * 0.5 * (vol + state.volume)
     energy = state.energy + dt * power / state.mass
     return F, sig, vol, energy
 
@@ -326,7 +379,8 @@ def seed_update(lay, params, state, dt):
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     g = particle_to_grid(lay, params, st, state, beta)                             # 2
     acc_p = body_acceleration(lay, params, state)
-    v_n, a_n, dg = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
+    v_n, a_n, dg, p_amb_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
+    p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
     if scene.transfer == "musl":                                                   # 4
         v = state.v + dt * interpolate(st, lay.field, a_n)
         vol_n = g["vol"][..., 0] if "vol" in g else None
@@ -339,7 +393,7 @@ def seed_update(lay, params, state, dt):
         va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
         moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
         L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
-    F, sig, vol, energy = constitutive(lay, params, moved, L, dt)                  # 5
+    F, sig, vol, energy = constitutive(lay, params, moved, L, dt, p_amb)           # 5
     return replace(moved, t=state.t + dt, F=F, stress=sig, volume=vol, energy=energy)
 
 

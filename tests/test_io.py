@@ -67,7 +67,8 @@ def test_layout_and_metadata(run, tmp_path):
             assert x3.shape == (sl.stop - sl.start, 3)
             np.testing.assert_array_equal(x3[:, :2], np.asarray(history.x[2, sl]))
             assert not x3[:, 2].any()
-            assert "eps_ps" not in g and "damage" not in g
+            assert g["eps_ps"].attrs["units"] == "1" and "damage" not in g   # the State has no damage yet
+            np.testing.assert_array_equal(g["eps_ps"][()], np.asarray(history.eps_ps[2, sl]))
         assert float(f["params/phases/disk_a/E"][()]) == float(params.phases["disk_a"]["E"])
         assert float(f["params/cfl"][()]) == float(params.cfl)
 
