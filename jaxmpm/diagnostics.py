@@ -73,3 +73,19 @@ def summary(scene, params, state) -> dict:
             "momentum": [float(a) for a in momentum(state)],
             "kinetic": float(kinetic_energy(state)), "internal": float(internal_energy(state)),
             "total_energy": float(total_energy(scene, params, state))}
+
+
+def volume_fractions(scene, state):
+    """Nodal volume fractions theta_nk = sum_{p in k} V_p S_np / V_n of every velocity field,
+    (K, *nodes), and their sum Theta = sum_k theta_k, (*nodes,) (E7 asks Theta = 1 in a mixture)."""
+    from jaxmpm.ddmp import node_support
+    from jaxmpm.shapes import linear_stencil
+    from jaxmpm.state import particle_fields
+    from jaxmpm.transfer import scatter_weighted
+
+    grid = scene.grid
+    K = scene.n_fields
+    field = jnp.asarray(particle_fields(scene)) if K > 1 else None
+    vol = scatter_weighted(linear_stencil(grid, state.x), field, state.volume[:, None], K, grid.n_nodes)[..., 0]
+    theta = (vol / jnp.asarray(node_support(grid).reshape(-1), vol.dtype)).reshape((K,) + grid.nodes)
+    return theta, jnp.sum(theta, 0)

@@ -275,3 +275,12 @@ def test_water_column_split_into_two_fields_stays_hydrostatic():
     step_off = jaxmpm.make_step(dataclasses.replace(scene, interface_forces=False))
     s_off = jax.lax.fori_loop(0, 2_000, lambda i, s: step_off(params, s), s0)
     assert abs(float(-s_off.stress[0, 0, 0]) / float(p[0]) - 1) > 1e-2
+
+
+def test_volume_fractions_of_an_overlapping_mixture_sum_to_one():
+    scene = mixture(drag=1.0)
+    params = jaxmpm.default_params(scene)
+    theta, total = jaxmpm.diagnostics.volume_fractions(scene, jaxmpm.init_state(scene, params))
+    assert theta.shape == (2, 11)
+    np.testing.assert_allclose(np.asarray(theta), 0.5, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-12)
