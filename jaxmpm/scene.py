@@ -108,7 +108,7 @@ def geometry_from_dict(d: Mapping, where: str):
         _fail(where, d, "a table with key 'type' (box | sphere)")
     d = dict(d)
     kind = d.pop("type", None)
-    if kind not in GEOMETRIES:
+    if not isinstance(kind, str) or kind not in GEOMETRIES:
         _fail(f"{where}.type", kind, " | ".join(GEOMETRIES))
     cls = GEOMETRIES[kind]
     names = [f.name for f in dataclasses.fields(cls)]
