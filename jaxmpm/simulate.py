@@ -86,15 +86,28 @@ def _fixed_fn(scene, n_per_out, n_out, checkpoint):
     return run
 
 
+def _phase_of(scene, i):
+    return next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
+
+
 def find_nonfinite(scene, state):
-    """None if every particle value is finite, else a message naming field, phase and particle."""
+    """None if every particle value is finite and every particle inside the grid, else a message
+    naming the field, the phase and the particle index."""
     for name in ("x", "v", "stress", "volume", "energy"):
         a = np.asarray(getattr(state, name))
         bad = ~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
-            phase = next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
-            return f"non-finite {name} at t = {float(state.t):.6g} s: phase {phase!r}, particle {i}"
+            return f"non-finite {name} at t = {float(state.t):.6g} s: phase {_phase_of(scene, i)!r}, particle {i}"
+    margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
+    lo = np.asarray(scene.grid.origin) + margin
+    hi = np.asarray(scene.grid.hi) - margin
+    x = np.asarray(state.x)
+    out = np.any((x < lo) | (x > hi), axis=1)
+    if out.any():
+        i = int(np.argmax(out))
+        return (f"particle {i} of phase {_phase_of(scene, i)!r} left the grid at t = {float(state.t):.6g} s: "
+                f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)")
     return None
 
 
@@ -158,6 +171,11 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk):
                 msg = find_nonfinite(scene, state)
                 if msg:
                     raise FloatingPointError(f"{scene.name}: {msg} (chunk {n_chunks} of {chunk} steps)")
+                if dt is not None and float(dt) > float(cfl_time_step(scene, params, state)) * (1 + 1e-9):
+                    raise FloatingPointError(
+                        f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
+                        f"{float(cfl_time_step(scene, params, state)):.6g} s at t = {float(state.t):.6g} s "
+                        f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
                 if not float(state.t) > t_before:
                     raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
                                              f"(dt = 0: a wave speed is non-finite or infinite)")

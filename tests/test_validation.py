@@ -1,6 +1,7 @@
 """Bad input gets a clear ValueError that names the field and the allowed range."""
 import dataclasses
 
+import jax.numpy as jnp
 import pytest
 
 import jaxmpm
@@ -124,3 +125,22 @@ def test_malformed_toml_names_the_line(tmp_path):
 def test_wrong_types_and_values_in_scene_file(old, new, match):
     with pytest.raises(ValueError, match=match):
         jaxmpm.scenefile.scene_from_toml(SCENE_TOML.replace(old, new))
+
+
+def test_particle_leaving_the_grid_stops_the_run_with_a_message():
+    scene = _scene(phases=(Phase("block", "m", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    with pytest.raises(FloatingPointError, match=r"particle \d+ of phase 'block' left the grid at t = .* allowed"):
+        jaxmpm.simulate(scene, params, state, progress=False)
+
+
+def test_fixed_dt_that_becomes_unstable_stops_the_run():
+    scene = _scene(t_end=0.05)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    limit = jaxmpm.cfl_limit(scene, params, state) * 0.3
+    # a dt just under the limit at rest; the pre-compressed block then expands and speeds up
+    stressed = dataclasses.replace(state, stress=state.stress.at[:].set(-2e6 * jnp.eye(2)))
+    with pytest.raises(FloatingPointError, match=r"fixed dt = .* exceeds the CFL limit"):
+        jaxmpm.simulate(scene, params, stressed, dt=0.999 * limit, progress=False)
