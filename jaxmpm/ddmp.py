@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.fields import safe_div
 from jaxmpm.state import stencil_offsets
 
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
@@ -77,11 +78,6 @@ def node_support(grid) -> np.ndarray:
     return vol
 
 
-def _safe_div(a, b, bmin):
-    ok = b > bmin
-    return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
-
-
 @dataclass(frozen=True)
 class DDMPGrid:
     V: jax.Array      # (K, *nodes) V_j of (R3), m^d
@@ -109,7 +105,7 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     Returns (K, *nodes, d) in N."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
-    sig_hat = _safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
+    sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
     fc = -jnp.einsum("...jab,...jib->...ia", corners(sig_hat, d), dg.A)
     return add_corners(fc, d)
 
@@ -119,7 +115,7 @@ def nodal_velocity_gradient(grid, dg, v):
     d = grid.dim
     vmin = 1e-12 * grid.h**d
     Lc = jnp.einsum("...ia,...jib->...jab", corners(v, d), dg.A)
-    return _safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
+    return safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
 
 
 def nodal_scalar_gradient(grid, dg, p):

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm import ddmp, fields
+from jaxmpm.constitutive import constitutive, force_stress
 from jaxmpm.materials.models import MODELS
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
@@ -64,11 +65,6 @@ def boundary_mask(scene) -> np.ndarray | None:
 
 
 # ----------------------------------------------------------------------------------- helpers
-def _safe_div(a, b, bmin):
-    ok = b > bmin
-    return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
-
-
 def _apply_bc(lay, v):
     return v if lay.bc_mask is None else v * jnp.asarray(lay.bc_mask, v.dtype)
 
@@ -165,22 +161,6 @@ def phase_pressure_and_compressibility(lay, params, state):
     return -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim, kappa
 
 
-def closure_alpha(params, state):
-    """(E5) alpha = 1 - tanh(eps_ps / C_h): 1 for intact material, -> 0 when fragmented. (N,)"""
-    return 1.0 - jnp.tanh(state.eps_ps / params.c_h)
-
-
-def force_stress(lay, params, state):
-    """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the isotropic part
-    scaled by alpha, sigma + (1 - alpha) p I, so a fragmented material does no work through a
-    volume change it does not have."""
-    if lay.scene.c_h is None:
-        return state.stress
-    d = lay.dim
-    p = -jnp.trace(state.stress, axis1=1, axis2=2) / d
-    return state.stress + ((1 - closure_alpha(params, state)) * p)[:, None, None] * jnp.eye(d, dtype=p.dtype)
-
-
 def particle_to_grid(lay, params, st, state, beta):
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
     (nodal volume, stress share) and the multi-field stage (E15 fit moments, compressibility) need.
@@ -251,7 +231,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     dtype = state.mass.dtype
     dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
-    v = _apply_bc(lay, _safe_div(g["mv"], m, m_min))
+    v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
     f = _nodal_stress_force(lay, dg, g)
     p_amb = None
     if scene.has_interface_forces:
@@ -260,13 +240,13 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if acc_p is not None:
         f = f + scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
                         lay.n_fields, lay.n_nodes)
-    a = _safe_div(f, m, m_min)
+    a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
     a = _apply_bc(lay, a)
     if scene.has_exchange:
         F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
-        a = _apply_bc(lay, a + _safe_div(F, m, m_min))
+        a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
     return v, a, dg, p_amb
 
 
@@ -296,63 +276,16 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None)
 
 
-def material_volume_rate(lay, params, state, L, dt, p_amb):
-    """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
-    B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
-    relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s."""
-    scene = lay.scene
-    alpha = closure_alpha(params, state)
-    rho = state.mass / state.volume
-    K, c = [], []
-    for p, sl in zip(scene.phases, lay.slices):
-        model = MODELS[scene.material(p).model]
-        K.append(model.bulk_modulus(params.phases[p.name], rho[sl], lay.dim))
-        c.append(model.wave_speed(params.phases[p.name], rho[sl], lay.dim) * jnp.ones_like(rho[sl]))
-    K, c = jnp.concatenate(K), jnp.concatenate(c)
-    tau = scene.grid.h / c
-    p = -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim
-    x = dt / tau
-    relax = jnp.where(x > 1e-8, -jnp.expm1(-x) / jnp.where(x > 1e-8, x, 1.0), 1.0) / tau
-    B = (1 - alpha) * (p - p_amb) / K * relax
-    return alpha * jnp.trace(L, axis1=1, axis2=2) + B
-
-
-def constitutive(lay, params, state, L, dt, p_amb=None):
-    """Stage 5: per phase, its model's stress update; volume V *= exp(dt tr L) (or the material
-    rate of the closure, E4); internal energy de = dt V sigma_f:D / m with midpoint values, sigma_f
-    the stress the grid sees (with the closure the energy its relaxation releases stays as heat)."""
-    scene = lay.scene
-    d = lay.dim
-    L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
-    if scene.c_h is not None:
-        p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
-        rate = material_volume_rate(lay, params, state, L, dt, p_amb)
-        L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
-    Fs, sigs = [], []
-    for p, sl in zip(scene.phases, lay.slices):
-        model = MODELS[scene.material(p).model]
-        F, sig = model.update(params.phases[p.name], state.F[sl], state.stress[sl], L_mat[sl], dt)
-        Fs.append(F)
-        sigs.append(sig)
-    F, sig = jnp.concatenate(Fs), jnp.concatenate(sigs)
-    vol = state.volume * jnp.exp(dt * rate)
-    D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
-    sig_f = 0.5 * (force_stress(lay, params, state) + force_stress(lay, params, replace(state, stress=sig)))
-    power = jnp.sum(sig_f * D, axis=(1, 2)) * 0.5 * (vol + state.volume)
-    energy = state.energy + dt * power / state.mass
-    return F, sig, vol, energy
-
-
 def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
     """Remap particle velocities v_p onto the nodes of stencil st: v_n = sum m_p v_p S_np / m_n,
     walls applied; with several coupled fields the implicit exchange applied again (E14).
     vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d)."""
     w = st.w[..., None]
     g = _scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
-    v = _apply_bc(lay, _safe_div(g["mv"], g["m"], m_min))
+    v = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
     if lay.scene.has_exchange:                                                           # (E14)
         F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
-        v = _apply_bc(lay, v + dt * _safe_div(F, g["m"], m_min))
+        v = _apply_bc(lay, v + dt * fields.safe_div(F, g["m"], m_min))
     return v
 
 
@@ -411,7 +344,7 @@ def apic_update(lay, params, state, dt):
     if acc_p is not None:
         mom = mom + dt * st.w[..., None] * (m[:, None] * acc_p)[:, None, :]
     g = scatter(st, lay.field, jnp.concatenate([st.w[..., None] * m[:, None, None], mom], -1), lay.n_fields, lay.n_nodes)
-    v_n = _safe_div(g[..., 1:], g[..., :1], m_min)
+    v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
     if scene.damping is not None:
         v_n = v_n * jnp.exp(-params.damping * dt)
     v_n = _apply_bc(lay, v_n)
