@@ -46,33 +46,60 @@ def _load(name: str, overrides: dict, options: dict):
     return jaxmpm.load_scene(name, overrides=overrides, **options)
 
 
+def _resume_file(folder: str) -> Path:
+    files = sorted(Path(folder).glob("*.restart.h5"))
+    if len(files) != 1:
+        raise ValueError(f"--resume {folder!r}: expected one *.restart.h5 file there, found {[f.name for f in files]}")
+    return files[0]
+
+
 def cmd_run(args) -> int:
     import jax
 
+    if args.resume:
+        path = _resume_file(args.resume)
+        import h5py
+        with h5py.File(path, "r") as f:
+            if f["params/0000"].dtype == "float64":
+                args.x64 = True
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     import jaxmpm
-    from jaxmpm import diagnostics, io
+    from jaxmpm import diagnostics, io, restart
     from jaxmpm.scenes import initial_state
 
-    scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
+    if args.restart_every < 0:
+        raise ValueError(f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)")
+    if args.resume:
+        scene = restart.load(path)["scene"]
+        out = Path(args.resume)
+    else:
+        scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
+        out = Path(args.out)
     if not scene.name or scene.name in (".", "..") or os.sep in scene.name or "/" in scene.name:
         raise ValueError(f"name = {scene.name!r} is invalid as an output file name: allowed a name without '/'")
-    out = Path(args.out)
     h5, png = out / f"{scene.name}.h5", out / f"{scene.name}.png"
     xdmf = io.xdmf_path(h5)
-    io.check_new(h5, xdmf, png, overwrite=args.overwrite)
-    t_end = scene.t_end if args.t_end is None else args.t_end
-    n_out = scene.n_out if args.n_out is None else args.n_out
-    params = jaxmpm.default_params(scene)
-    state = initial_state(scene, params)
-    n = state.x.shape[0]
-    print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
-          f"{n} particles in {len(scene.phases)} phases, to t = {t_end:g} s with {n_out} outputs, "
-          f"{state.x.dtype}", flush=True)
-    start = diagnostics.summary(scene, params, state)
+    rfile = out / f"{scene.name}.restart.h5"
+    io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
-    final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress)
+    if args.resume:
+        print(f"resuming {scene.name} from {path}", flush=True)
+        scene, params, final, history = restart.resume(path, progress=not args.no_progress,
+                                                       restart_every=args.restart_every)
+        start = diagnostics.summary(scene, params, jax.tree.map(lambda a: None if a is None else a[0], history))
+    else:
+        t_end = scene.t_end if args.t_end is None else args.t_end
+        n_out = scene.n_out if args.n_out is None else args.n_out
+        params = jaxmpm.default_params(scene)
+        state = initial_state(scene, params)
+        print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
+              f"{state.x.shape[0]} particles in {len(scene.phases)} phases, to t = {t_end:g} s with {n_out} outputs, "
+              f"{state.x.dtype}", flush=True)
+        start = diagnostics.summary(scene, params, state)
+        final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress,
+                                         restart_file=str(rfile) if args.restart_every else None,
+                                         restart_every=args.restart_every or 1)
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
@@ -86,7 +113,7 @@ def cmd_run(args) -> int:
         label = f"{k.replace('_energy', '')} ({io.units(k, scene.dim)})"
         print(f"  {label:<16}{start[k]:>14.6g}{end[k]:>14.6g}")
     print("wrote:")
-    for p in (h5, xdmf, png):
+    for p in (h5, xdmf, png) + ((rfile,) if args.restart_every and not args.resume else ()):
         print(f"  {p}")
     return 0
 
@@ -133,6 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace existing output files")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--x64", action="store_true", help="double precision (float64)")
+    run.add_argument("--restart-every", type=int, default=20, metavar="N",
+                     help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
+    run.add_argument("--resume", metavar="DIR",
+                     help="continue the run whose restart file is in DIR (bit-identical to an uninterrupted run)")
     run.set_defaults(func=cmd_run)
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")

@@ -112,7 +112,7 @@ def find_nonfinite(scene, state):
 
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
-             progress=True, checkpoint=False, chunk=None):
+             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -121,6 +121,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
       host cannot plan (use `plan_steps` outside). progress: tqdm bar (host driver only).
     checkpoint: jax.checkpoint each step (fixed-length driver). chunk: steps per jitted chunk.
+    restart_file: path of a restart file to save every `restart_every` chunks and at each output
+      (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically.
     """
     t_end = scene.t_end if t_end is None else float(t_end)
     n_out = scene.n_out if n_out is None else int(n_out)
@@ -145,11 +147,15 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         final, hist = _fixed_fn(scene, n_per_out, n_out, bool(checkpoint))(params, state, times, dt_arr)
         history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
         return final, history
-    return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk)
+    if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
+        raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
+    return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk,
+                        restart_file=restart_file, restart_every=restart_every)
 
 
-def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk):
-    t0 = float(state.t)
+def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
+                 start_out=0, restart_file=None, restart_every=0):
+    t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = plan_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
@@ -159,10 +165,21 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk):
     if progress:
         from tqdm.auto import tqdm
         bar = tqdm(total=t_end - t0, unit="s", desc=scene.name, bar_format="{l_bar}{bar}| t={n:.3g}/{total:.3g} s [{elapsed}<{remaining}]")
-    history, n_chunks = [state], 0
+    history = [state] if history is None else list(history)
+    n_chunks = 0
     tol = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(t_end), t_end - t0)
+
+    def save(next_out):
+        if restart_file is not None:
+            from jaxmpm import restart
+            restart.save(restart_file, scene, params, state, history, t0=t0, t_end=t_end, n_out=n_out,
+                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt))
+
+    if bar is not None:
+        bar.update(float(state.t) - t0)
     try:
-        for t_stop in times:
+        for i_out in range(start_out, n_out):
+            t_stop = times[i_out]
             stop = jnp.asarray(t_stop, state.t.dtype)
             while float(state.t) < t_stop - tol:
                 t_before = float(state.t)
@@ -180,8 +197,11 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk):
                     raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
                                              f"(dt = 0: a wave speed is non-finite or infinite)")
                 if bar is not None:
-                    bar.update(float(state.t) - bar.n)
+                    bar.update(float(state.t) - t0 - bar.n)
+                if restart_every and n_chunks % restart_every == 0:
+                    save(i_out)
             history.append(state)
+            save(i_out + 1)
     finally:
         if bar is not None:
             bar.close()
