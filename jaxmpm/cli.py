@@ -97,6 +97,9 @@ def cmd_run(args) -> int:
               f"{state.x.shape[0]} particles in {len(scene.phases)} phases, to t = {t_end:g} s with {n_out} outputs, "
               f"{state.x.dtype}", flush=True)
         start = diagnostics.summary(scene, params, state)
+        itemsize = state.x.dtype.itemsize
+        io.check_space(out, io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
+                       + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0))
         final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress,
                                          restart_file=str(rfile) if args.restart_every else None,
                                          restart_every=args.restart_every or 1)

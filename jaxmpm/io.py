@@ -56,6 +56,29 @@ def units(name: str, dim: int) -> str:
 
 
 # ----------------------------------------------------------------------------------- safe writing
+def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
+    """Bytes that `write` needs for n_times outputs of n_particles (datasets x, v, x3, v3, volume,
+    mass, F, stress, energy, eps_ps, C where used), with 10% for metadata and the XDMF."""
+    d = scene.dim
+    per_particle = 2 * d + 6 + 2 + 2 * d * d + 2 + (d * d if scene.transfer == "apic" else 0)
+    return int(1.1 * n_times * n_particles * per_particle * itemsize) + 65536
+
+
+def check_space(folder, needed: int) -> None:
+    """OSError if the disk holding `folder` has less than `needed` bytes free, saying both."""
+    import shutil
+
+    folder = Path(folder)
+    probe = folder
+    while not probe.exists():
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < needed:
+        raise OSError(f"not enough disk space in {folder}: the outputs need about {needed / 1e6:.1f} MB, "
+                      f"{free / 1e6:.1f} MB are free (fewer outputs: --n-out, or another --out)")
+
+
+
 def check_new(*paths, overwrite: bool = False) -> None:
     """Raise FileExistsError naming the first of `paths` that exists, unless overwrite."""
     if overwrite:

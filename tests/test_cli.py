@@ -121,3 +121,32 @@ def test_python_m_jaxmpm_scenes():
     r = subprocess.run([sys.executable, "-m", "jaxmpm", "scenes"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "elastic_impact" in r.stdout
+
+
+def test_run_refuses_to_start_without_disk_space(tmp_path, monkeypatch, capsys):
+    import shutil
+    from collections import namedtuple
+
+    from jaxmpm import cli
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
+    code = cli.main(["run", "--out", str(tmp_path / "o"), "--no-progress", "--opt", "resolution=0.25", "--t-end", "0.1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "not enough disk space" in err and "MB are free" in err
+    assert not (tmp_path / "o" / "elastic_impact.h5").exists()
+
+
+def test_output_size_estimate_covers_the_file(tmp_path):
+    import jaxmpm
+    from jaxmpm import io
+
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    _, hist = jaxmpm.simulate(scene, params, s0, t_end=0.2, n_out=3, progress=False)
+    h5, xdmf = io.write(tmp_path / "a.h5", scene, hist)
+    size = h5.stat().st_size + xdmf.stat().st_size
+    est = io.estimate_bytes(scene, s0.x.shape[0], 4, s0.x.dtype.itemsize)
+    assert size <= est < 3 * size
