@@ -104,6 +104,7 @@ GEOMETRIES = {"box": Box, "sphere": Sphere}
 
 
 def geometry_from_dict(d: Mapping, where: str):
+    """Box or Sphere from its scene-file table; ValueError naming `where` on bad input."""
     if not isinstance(d, Mapping):
         _fail(where, d, "a table with key 'type' (box | sphere)")
     d = dict(d)
@@ -396,6 +397,7 @@ class Scene:
         return self.n_fields > 1 and self.interface_forces
 
     def material(self, phase: Phase) -> Material:
+        """The resolved Material of `phase` (library key, scene material or Material)."""
         return resolve_material(phase.material, self.materials, f"phase.{phase.name}.material")
 
     def phase_names(self) -> tuple[str, ...]:

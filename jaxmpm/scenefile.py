@@ -198,6 +198,7 @@ def scene_to_toml(scene: Scene) -> str:
 
 
 def parse_toml(text: str, source: str = "<string>") -> dict:
+    """TOML text -> dict; ValueError naming `source` and the line on malformed TOML."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -205,6 +206,7 @@ def parse_toml(text: str, source: str = "<string>") -> dict:
 
 
 def scene_from_toml(text: str, source: str = "<string>") -> Scene:
+    """A Scene from scene-file text (see the module docstring for the keys)."""
     return scene_from_dict(parse_toml(text, source))
 
 

@@ -179,6 +179,7 @@ def particle_to_grid(lay, params, st, state, beta):
 
 
 def ddmp_operators(lay, st, nodal_volume, dtype):
+    """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) at stencil st."""
     scene = lay.scene
     cells = cell_count(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), dtype)
     return ddmp.build(scene.grid, nodal_volume.reshape(_grid_shape(lay)),

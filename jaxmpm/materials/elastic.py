@@ -45,6 +45,7 @@ def linear_elastic_stress(c, F):
 
 
 def linear_elastic_update(c, F, stress, L, dt):
+    """F_{n+1} = (I + dt L) F_n and sigma from it (small strain; not objective)."""
     F = update_F(F, L, dt)
     return F, linear_elastic_stress(c, F)
 
@@ -83,6 +84,7 @@ def solid_wave_speed(c, rho, dim):
 
 
 def fluid_wave_speed(c, rho, dim):
+    """sqrt(K / rho), m/s."""
     return jnp.sqrt(c["K"] / rho)
 
 
@@ -94,4 +96,5 @@ def solid_bulk_modulus(c, rho, dim):
 
 
 def fluid_bulk_modulus(c, rho, dim):
+    """K, Pa."""
     return c["K"] * jnp.ones_like(rho)

@@ -67,6 +67,7 @@ def library_table() -> dict:
 
 
 def known_keys() -> tuple[str, ...]:
+    """The material keys of the library, sorted."""
     return tuple(sorted(library_table()))
 
 
