@@ -1,15 +1,14 @@
 """Stage 5 of the step: the constitutive update of every phase by its model kind, the material
-volume rate with the continuous-to-disperse closure (E4, E5, E8) and the internal energy.
+volume rate with the continuous-to-disperse closure (E4, E5, E8), artificial viscosity and the
+internal energy.
 
 Shapes: N particles, d dimensions; SI units.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import jax.numpy as jnp
 
-from jaxmpm.materials.models import MODELS
+from jaxmpm.materials.models import MatPoint, model_of
 
 
 def closure_alpha(params, state):
@@ -17,59 +16,97 @@ def closure_alpha(params, state):
     return 1.0 - jnp.tanh(state.eps_ps / params.c_h)
 
 
+def pressure(lay, state):
+    """(N,) pressure of every particle, Pa: state.pressure for the hydrocode models (EOS plus
+    artificial viscosity), -tr(stress) / d for the total-stress models (so a user who edits the
+    stress of such a State needs not edit the pressure)."""
+    scene = lay.scene
+    if all(model_of(scene.material(p).model).hydro for p in scene.phases):
+        return state.pressure
+    tr = -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim
+    return jnp.concatenate([state.pressure[sl] if model_of(scene.material(p).model).hydro else tr[sl]
+                            for p, sl in zip(scene.phases, lay.slices)])
+
+
 def force_stress(lay, params, state):
-    """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the isotropic part
-    scaled by alpha, sigma + (1 - alpha) p I, so a fragmented material does no work through a
-    volume change it does not have."""
+    """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the pressure scaled by
+    alpha, sigma + (1 - alpha) p I, so a fragmented material does no work through a volume change it
+    does not have (p = state.pressure, the pressure the stress holds)."""
     if lay.scene.c_h is None:
         return state.stress
     d = lay.dim
-    p = -jnp.trace(state.stress, axis1=1, axis2=2) / d
-    return state.stress + ((1 - closure_alpha(params, state)) * p)[:, None, None] * jnp.eye(d, dtype=p.dtype)
+    p = pressure(lay, state)
+    return state.stress + ((1 - closure_alpha(params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
+
+
+def per_phase(lay, params, state, fn):
+    """Concatenate fn(model, constants, slice) over the phases (particle order)."""
+    scene = lay.scene
+    return jnp.concatenate([fn(model_of(scene.material(p).model), params.phases[p.name], sl)
+                            for p, sl in zip(scene.phases, lay.slices)])
+
+
+def bulk_modulus_and_wave_speed(lay, params, state):
+    """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state."""
+    rho = state.mass / state.volume
+    K = per_phase(lay, params, state, lambda m, c, sl: m.bulk_modulus(c, rho[sl], state.energy[sl], lay.dim)
+                  * jnp.ones_like(rho[sl]))
+    cw = per_phase(lay, params, state, lambda m, c, sl: m.wave_speed(c, rho[sl], state.energy[sl], lay.dim)
+                   * jnp.ones_like(rho[sl]))
+    return K, cw
 
 
 def material_volume_rate(lay, params, state, L, dt, p_amb):
     """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
     B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
     relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s."""
-    scene = lay.scene
     alpha = closure_alpha(params, state)
-    rho = state.mass / state.volume
-    K, c = [], []
-    for p, sl in zip(scene.phases, lay.slices):
-        model = MODELS[scene.material(p).model]
-        K.append(model.bulk_modulus(params.phases[p.name], rho[sl], lay.dim))
-        c.append(model.wave_speed(params.phases[p.name], rho[sl], lay.dim) * jnp.ones_like(rho[sl]))
-    K, c = jnp.concatenate(K), jnp.concatenate(c)
-    tau = scene.grid.h / c
-    p = -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim
+    K, c = bulk_modulus_and_wave_speed(lay, params, state)
+    tau = lay.scene.grid.h / c
     x = dt / tau
     relax = jnp.where(x > 1e-8, -jnp.expm1(-x) / jnp.where(x > 1e-8, x, 1.0), 1.0) / tau
-    B = (1 - alpha) * (p - p_amb) / K * relax
+    B = (1 - alpha) * (pressure(lay, state) - p_amb) / K * relax
     return alpha * jnp.trace(L, axis1=1, axis2=2) + B
 
 
+def artificial_viscosity(lay, params, state, rho_new, trD):
+    """von Neumann-Richtmyer pressure q = rho l (c_q l (tr D)^2 - c_l c tr D) in compression
+    (tr D < 0), 0 in expansion; l the cell size h, c the bulk sound speed. (N,) Pa"""
+    K, _ = bulk_modulus_and_wave_speed(lay, params, state)
+    c = jnp.sqrt(K / (state.mass / state.volume))
+    l = lay.scene.grid.h
+    comp = jnp.minimum(trD, 0.0)
+    return rho_new * l * (params.av_quadratic * l * comp**2 - params.av_linear * c * comp)
+
+
 def constitutive(lay, params, state, L, dt, p_amb=None):
-    """Stage 5: per phase, its model's stress update; volume V *= exp(dt tr L) (or the material
-    rate of the closure, E4); internal energy de = dt V sigma_f:D / m with midpoint values, sigma_f
-    the stress the grid sees (with the closure the energy its relaxation releases stays as heat)."""
+    """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
+    model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
+    values, sigma_f the stress the grid sees), plastic strain and damage. Returns the new fields as a
+    dict of State field names."""
     scene = lay.scene
     d = lay.dim
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
+    alpha_of = None
     if scene.c_h is not None:
         p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
         rate = material_volume_rate(lay, params, state, L, dt, p_amb)
         L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
-    Fs, sigs = [], []
-    for p, sl in zip(scene.phases, lay.slices):
-        model = MODELS[scene.material(p).model]
-        F, sig = model.update(params.phases[p.name], state.F[sl], state.stress[sl], L_mat[sl], dt)
-        Fs.append(F)
-        sigs.append(sig)
-    F, sig = jnp.concatenate(Fs), jnp.concatenate(sigs)
+        alpha_of = lambda eps: 1.0 - jnp.tanh(eps / params.c_h)
     vol = state.volume * jnp.exp(dt * rate)
+    rho_new = state.mass / vol
+    q = (artificial_viscosity(lay, params, state, rho_new, jnp.trace(L_mat, axis1=1, axis2=2))
+         if scene.artificial_viscosity is not None else None)
     D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
-    sig_f = 0.5 * (force_stress(lay, params, state) + force_stress(lay, params, replace(state, stress=sig)))
-    power = jnp.sum(sig_f * D, axis=(1, 2)) * 0.5 * (vol + state.volume)
-    energy = state.energy + dt * power / state.mass
-    return F, sig, vol, energy
+    work = dt * 0.5 * (vol + state.volume) / state.mass
+    mp = MatPoint(state.F, state.stress, pressure(lay, state), state.energy, state.eps_ps, state.damage,
+                  state.mass / state.volume, rho_new)
+    outs = []
+    for p, sl in zip(scene.phases, lay.slices):
+        model = model_of(scene.material(p).model)
+        part = MatPoint(*(a[sl] for a in mp))
+        outs.append(model.update(params.phases[p.name], part, L_mat[sl], D[sl], dt, work[sl],
+                                 None if q is None else q[sl], alpha_of))
+    new = MatPoint(*(jnp.concatenate(a) for a in zip(*outs)))
+    return dict(F=new.F, stress=new.stress, volume=vol, energy=new.energy, eps_ps=new.eps_ps,
+                pressure=new.pressure, damage=new.damage)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxmpm.materials.models import MODELS
+from jaxmpm.materials.models import model_of
 from jaxmpm.state import phase_slices
 
 
@@ -39,7 +39,7 @@ def strain_energy(scene, params, state):
     """Elastic energy from F for phases whose model defines it (else from the energy integral), J."""
     total = 0.0
     for p, sl in zip(scene.phases, phase_slices(scene)):
-        model = MODELS[scene.material(p).model]
+        model = model_of(scene.material(p).model)
         if model.strain_energy is not None:
             V0 = state.mass[sl] / params.phases[p.name]["rho0"]
             total = total + jnp.sum(V0 * model.strain_energy(params.phases[p.name], state.F[sl]))

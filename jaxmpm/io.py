@@ -11,7 +11,7 @@ HDF5 layout written by `write` (SI units; every dataset carries a `units` attrib
         x (n, d) m, v (n, d) m/s, volume (n,) m^3, mass (n,) kg (per unit depth in 2D: m^2, kg/m;
         per unit area in 1D: m, kg/m^2), F (n, d, d) 1,
         stress (n, d, d) Pa, energy (n,) J/kg; C (n, d, d) 1/s with APIC transfer;
-        eps_ps (n,) 1 and damage (n,) 1 where the State has them;
+        eps_ps (n,) 1, pressure (n,) Pa and damage (n,) 1 where the State has them;
         x3 (n, 3) m and v3 (n, 3) m/s: x and v padded with zeros to 3 components (1D, 2D), for XDMF.
 
 The XDMF file beside it (same stem, .xdmf) is a temporal collection of spatial collections, one
@@ -36,9 +36,9 @@ import numpy as np
 from jaxmpm.state import State, phase_slices
 
 UNITS = {"x": "m", "v": "m/s", "volume": "m^3", "mass": "kg", "F": "1", "stress": "Pa",
-         "energy": "J/kg", "C": "1/s", "eps_ps": "1", "damage": "1"}
+         "energy": "J/kg", "C": "1/s", "eps_ps": "1", "damage": "1", "pressure": "Pa"}
 FIELDS = ("x", "v", "volume", "mass", "F", "stress", "energy")
-OPTIONAL = ("C", "eps_ps", "damage")
+OPTIONAL = ("C", "eps_ps", "pressure", "damage")
 H5_SUFFIXES = (".h5", ".hdf5")
 
 
@@ -58,9 +58,9 @@ def units(name: str, dim: int) -> str:
 # ----------------------------------------------------------------------------------- safe writing
 def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
     """Bytes that `write` needs for n_times outputs of n_particles (datasets x, v, x3, v3, volume,
-    mass, F, stress, energy, eps_ps, C where used), with 10% for metadata and the XDMF."""
+    mass, F, stress, energy, eps_ps, pressure, damage, C where used), with 10% for metadata and the XDMF."""
     d = scene.dim
-    per_particle = 2 * d + 6 + 2 + 2 * d * d + 2 + (d * d if scene.transfer == "apic" else 0)
+    per_particle = 2 * d + 6 + 2 + 2 * d * d + 4 + (d * d if scene.transfer == "apic" else 0)
     return int(1.1 * n_times * n_particles * per_particle * itemsize) + 65536
 
 
@@ -216,7 +216,7 @@ def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
                       f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1"/>',
                       f'      <Geometry GeometryType="XYZ">{item((n, 3), f"{base}/{pos}")}</Geometry>',
                       f'      <Attribute Name="v" AttributeType="Vector" Center="Node">{item((n, 3), f"{base}/{vel}")}</Attribute>']
-            for name in ("volume", "mass", "energy") + tuple(k for k in ("eps_ps", "damage") if k in data):
+            for name in ("volume", "mass", "energy") + tuple(k for k in ("eps_ps", "pressure", "damage") if k in data):
                 lines.append(f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">'
                              f'{item((n,), f"{base}/{name}")}</Attribute>')
             for a in range(d):

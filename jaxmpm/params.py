@@ -10,6 +10,7 @@
     params.drag_length                    () d of (E3), m (default: the cell size h)
     params.linear_drag                    () K_lin of the linear drag term, kg/(m^3 s) (only with scene.linear_drag)
     params.c_h                            () C_h of the closure alpha = 1 - tanh(eps_ps / C_h) (E5; only with scene.c_h)
+    params.av_linear, params.av_quadratic () c_l, c_q of the artificial viscosity (only with scene.artificial_viscosity)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
 """
@@ -22,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.materials.models import MODELS, check_constant
+from jaxmpm.materials.models import check_constant, model_of
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,8 @@ class Params:
     drag_length: jax.Array
     linear_drag: jax.Array
     c_h: jax.Array
+    av_linear: jax.Array
+    av_quadratic: jax.Array
 
     def with_constant(self, phase: str, name: str, value) -> "Params":
         """A copy with params.phases[phase][name] = value."""
@@ -51,7 +54,7 @@ class Params:
 
 jax.tree_util.register_dataclass(
     Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl", "drag_coefficient",
-                         "drag_length", "linear_drag", "c_h"], meta_fields=[])
+                         "drag_length", "linear_drag", "c_h", "av_linear", "av_quadratic"], meta_fields=[])
 
 
 def default_params(scene, dtype=None) -> Params:
@@ -71,6 +74,8 @@ def default_params(scene, dtype=None) -> Params:
         drag_length=f(scene.drag_length if scene.drag_length is not None else scene.grid.h),
         linear_drag=f(scene.linear_drag if scene.linear_drag is not None else 0.0),
         c_h=f(scene.c_h if scene.c_h is not None else 1.0),
+        av_linear=f(scene.artificial_viscosity[0] if scene.artificial_viscosity is not None else 0.0),
+        av_quadratic=f(scene.artificial_viscosity[1] if scene.artificial_viscosity is not None else 0.0),
     )
 
 
@@ -89,7 +94,7 @@ def check_params(scene, params: Params) -> None:
     for p in scene.phases:
         model = scene.material(p).model
         for k, v in params.phases[p.name].items():
-            if k not in MODELS[model].constants:
+            if k not in model_of(model).constants:
                 raise ValueError(f"params.phases[{p.name!r}][{k!r}] is not a constant of model {model!r}")
             if _is_concrete(v):
                 for x in np.atleast_1d(np.asarray(v, dtype=float)):
@@ -109,7 +114,8 @@ def check_params(scene, params: Params) -> None:
         unused.append("drag_coefficient (the scene has no drag)")
     if scene.linear_drag is None and _is_concrete(params.linear_drag) and np.any(np.asarray(params.linear_drag) != 0):
         unused.append("linear_drag (the scene has no linear drag)")
-    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False), ("c_h", True)):
+    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False), ("c_h", True),
+                           ("av_linear", False), ("av_quadratic", False)):
         val = getattr(params, name)
         if _is_concrete(val):
             a = np.asarray(val)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from jaxmpm.materials import Material, resolve_material
+from jaxmpm.materials.models import model_of
 
 SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
@@ -270,6 +271,9 @@ class Scene:
         interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields).
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
         for no closure (material volume follows the velocity divergence).
+      artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
+        q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
+        av_quadratic), or None for none; only with equation-of-state (hydrocode) models.
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
@@ -287,6 +291,7 @@ class Scene:
     linear_drag: float | None = None
     interface_forces: bool = True
     c_h: float | None = None
+    artificial_viscosity: tuple[float, float] | None = None
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
@@ -356,6 +361,16 @@ class Scene:
             if not ch > 0:
                 _fail("effects.c_h", ch, "> 0")
             object.__setattr__(self, "c_h", ch)
+        if self.artificial_viscosity is not None:
+            av = _floats("effects.artificial_viscosity", self.artificial_viscosity, 2)
+            if min(av) < 0:
+                _fail("effects.artificial_viscosity", list(av), "[c_linear, c_quadratic] with both >= 0")
+            object.__setattr__(self, "artificial_viscosity", av)
+            for p in self.phases:
+                m = self.material(p)
+                if not model_of(m.model).hydro:
+                    _fail("effects.artificial_viscosity", list(av),
+                          f"only with equation-of-state models: phase {p.name!r} uses {m.model!r}")
         if not isinstance(self.interface_forces, bool):
             _fail("effects.interface_forces", self.interface_forces, "true | false")
         if self.c_h is not None and self.transfer == "apic":

@@ -31,7 +31,8 @@ import json
 import os
 from typing import Any, Mapping
 
-from jaxmpm.materials import Material
+from jaxmpm.materials import Material, known_keys, library_material
+from jaxmpm.materials.models import model_names
 from jaxmpm.scene import Boundary, Grid, Phase, Scene, geometry_from_dict
 
 try:
@@ -42,7 +43,7 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h")
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h", "artificial_viscosity")
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
 
@@ -93,8 +94,14 @@ def scene_from_dict(d: Mapping) -> Scene:
         if not isinstance(spec, Mapping):
             raise ValueError(f"materials.{key} = {spec!r} is invalid: allowed a table with model and constants")
         spec = dict(spec)
+        if "library" in spec:
+            lib = _typed(spec.pop("library"), (str,), f"materials.{key}.library", "a library material key")
+            model = _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name") if "model" in spec else None
+            mats.append(library_material(lib, model, key, **spec))
+            continue
         if "model" not in spec:
-            raise ValueError(f"materials.{key}.model is missing: allowed models are linear_elastic | hypoelastic | linear_fluid")
+            raise ValueError(f"materials.{key}.model is missing: allowed {model_names()} "
+                             f"(or library = '<key>' with one of {list(known_keys())})")
         model = _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name")
         mats.append(Material.make(key, model, **spec))
 
@@ -123,6 +130,9 @@ def scene_from_dict(d: Mapping) -> Scene:
                               ("cfl", (int, float), "a number in (0, 1]"), ("t_end", (int, float), "a number > 0 s")):
         if k in d:
             kw[k] = _typed(d[k], types, k, allowed)
+    if "artificial_viscosity" in e:
+        av = e["artificial_viscosity"]
+        kw["artificial_viscosity"] = tuple(av) if isinstance(av, list) else av
     if "gravity" in e:
         grav = e["gravity"]
         kw["gravity"] = tuple(grav) if isinstance(grav, list) else grav
@@ -158,6 +168,8 @@ def scene_to_dict(scene: Scene) -> dict:
             e[k] = getattr(scene, k)
     if not scene.interface_forces:
         e["interface_forces"] = False
+    if scene.artificial_viscosity is not None:
+        e["artificial_viscosity"] = list(scene.artificial_viscosity)
     d["effects"] = e
     d["output"] = {"n_out": scene.n_out}
     used = {p.material.key if isinstance(p.material, Material) else p.material for p in scene.phases}

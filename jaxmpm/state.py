@@ -13,6 +13,9 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
     energy  (N,)      specific internal energy, J/kg
     C       (N, d, d) APIC affine velocity matrix, 1/s (only with transfer = 'apic'; else None)
     eps_ps  (N,)      accumulated equivalent plastic strain (drives the alpha closure, E5)
+    pressure (N,)     pressure the stress holds, Pa (EOS + artificial viscosity; -tr(stress)/d for
+                      the total-stress models)
+    damage  (N,)      damage in [0, 1]; 1: failed, no tension and no shear
 """
 from __future__ import annotations
 
@@ -37,6 +40,8 @@ class State:
     energy: jax.Array
     C: jax.Array | None = None
     eps_ps: jax.Array | None = None
+    pressure: jax.Array | None = None
+    damage: jax.Array | None = None
 
     @property
     def n_particles(self) -> int:
@@ -44,7 +49,8 @@ class State:
 
 
 jax.tree_util.register_dataclass(
-    State, data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C", "eps_ps"], meta_fields=[])
+    State, data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C", "eps_ps", "pressure", "damage"],
+    meta_fields=[])
 
 
 @functools.lru_cache(maxsize=64)
@@ -92,14 +98,16 @@ def check_sampling(scene) -> None:
 
 
 def init_state(scene, params) -> State:
-    """Initial State: particles sampled from each phase's geometry, at rest stress, with the
-    phase's initial velocity; mass = rho0 * volume (rho0 from params). dtype follows params."""
+    """Initial State: particles sampled from each phase's geometry, at the rest pressure and internal
+    energy of its model (zero but for gases and p0 of an EOS), with the phase's initial velocity;
+    mass = rho0 * volume (rho0 from params). dtype follows params."""
+    from jaxmpm.materials.models import model_of
     from jaxmpm.params import check_params
 
     check_params(scene, params)
     d, h = scene.dim, scene.grid.h
     dtype = jnp.result_type(params.cfl)
-    xs, vs, ms, vols = [], [], [], []
+    xs, vs, ms, vols, ps, es = [], [], [], [], [], []
     for p in scene.phases:
         x = sample_phase(scene.grid, p)
         n = len(x)
@@ -108,12 +116,16 @@ def init_state(scene, params) -> State:
         vs.append(jnp.broadcast_to(jnp.asarray(p.velocity, dtype), (n, d)))
         vols.append(jnp.asarray(vol, dtype))
         ms.append(jnp.asarray(vol, dtype) * params.phases[p.name]["rho0"])
-    x, v, vol, m = (jnp.concatenate(a) for a in (xs, vs, vols, ms))
+        p0, e0 = model_of(scene.material(p).model).initial(params.phases[p.name])
+        ps.append(jnp.zeros(n, dtype) + p0)
+        es.append(jnp.zeros(n, dtype) + e0)
+    x, v, vol, m, pres, energy = (jnp.concatenate(a) for a in (xs, vs, vols, ms, ps, es))
     n = x.shape[0]
     eye = jnp.broadcast_to(jnp.eye(d, dtype=dtype), (n, d, d))
     C = jnp.zeros((n, d, d), dtype) if scene.transfer == "apic" else None
     return State(t=jnp.zeros((), dtype), x=x, v=v, mass=m, volume=vol, F=eye,
-                 stress=jnp.zeros((n, d, d), dtype), energy=jnp.zeros(n, dtype), C=C, eps_ps=jnp.zeros(n, dtype))
+                 stress=-pres[:, None, None] * eye, energy=energy, C=C, eps_ps=jnp.zeros(n, dtype),
+                 pressure=pres, damage=jnp.zeros(n, dtype))
 
 
 def stencil_offsets(dim: int, width: int) -> np.ndarray:

@@ -17,8 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm import ddmp, fields
-from jaxmpm.constitutive import constitutive, force_stress
-from jaxmpm.materials.models import MODELS
+from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress, pressure
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
 from jaxmpm.transfer import cell_count, gather, interpolate, scatter
@@ -88,12 +87,7 @@ def gravity_now(params, t):
 
 def wave_speed(scene, params, state):
     """(N,) longitudinal wave speed of every particle (m/s) at its current density."""
-    rho = state.mass / state.volume
-    out = []
-    for p, sl in zip(scene.phases, phase_slices(scene)):
-        model = MODELS[scene.material(p).model]
-        out.append(model.wave_speed(params.phases[p.name], rho[sl], scene.dim) * jnp.ones_like(rho[sl]))
-    return jnp.concatenate(out)
+    return bulk_modulus_and_wave_speed(Layout.of(scene), params, state)[1]
 
 
 def cfl_time_step(scene, params, state, cfl=None):
@@ -153,12 +147,8 @@ def _nodal_stress_force(lay, dg, g):
 
 
 def phase_pressure_and_compressibility(lay, params, state):
-    """(N,) particle pressure p = -tr(sigma) / d (Pa) and compressibility kappa = 1 / K (1/Pa)."""
-    scene = lay.scene
-    rho = state.mass / state.volume
-    kappa = jnp.concatenate([1.0 / MODELS[scene.material(p).model].bulk_modulus(params.phases[p.name], rho[sl], lay.dim)
-                             for p, sl in zip(scene.phases, lay.slices)])
-    return -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim, kappa
+    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa)."""
+    return pressure(lay, state), 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 
 def particle_to_grid(lay, params, st, state, beta):
@@ -327,8 +317,7 @@ def seed_update(lay, params, state, dt):
         va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
         moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
         L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
-    F, sig, vol, energy = constitutive(lay, params, moved, L, dt, p_amb)           # 5
-    return replace(moved, t=state.t + dt, F=F, stress=sig, volume=vol, energy=energy)
+    return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, L, dt, p_amb))  # 5
 
 
 def apic_update(lay, params, state, dt):
@@ -353,8 +342,7 @@ def apic_update(lay, params, state, dt):
     v = jnp.sum(st.w[..., None] * vs, 1)
     C = dinv * jnp.einsum("ns,nsa,nsb->nab", st.w, vs, st.dpos)
     moved = replace(state, x=state.x + dt * v, v=v, C=C)
-    F, sig, vol, energy = constitutive(lay, params, moved, C, dt)
-    return replace(moved, t=state.t + dt, F=F, stress=sig, volume=vol, energy=energy)
+    return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, C, dt))
 
 
 def make_step(scene):

@@ -67,8 +67,10 @@ def test_layout_and_metadata(run, tmp_path):
             assert x3.shape == (sl.stop - sl.start, 3)
             np.testing.assert_array_equal(x3[:, :2], np.asarray(history.x[2, sl]))
             assert not x3[:, 2].any()
-            assert g["eps_ps"].attrs["units"] == "1" and "damage" not in g   # the State has no damage yet
-            np.testing.assert_array_equal(g["eps_ps"][()], np.asarray(history.eps_ps[2, sl]))
+            assert g["eps_ps"].attrs["units"] == "1" and g["damage"].attrs["units"] == "1"
+            assert g["pressure"].attrs["units"] == "Pa"
+            for name in ("eps_ps", "damage", "pressure"):
+                np.testing.assert_array_equal(g[name][()], np.asarray(getattr(history, name)[2, sl]))
         assert float(f["params/phases/disk_a/E"][()]) == float(params.phases["disk_a"]["E"])
         assert float(f["params/cfl"][()]) == float(params.cfl)
 

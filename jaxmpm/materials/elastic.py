@@ -77,24 +77,24 @@ def linear_fluid_update(c, F, stress, L, dt):
     return F, (c["K"] * (J - 1))[..., None, None] * eye
 
 
-def solid_wave_speed(c, rho, dim):
+def solid_wave_speed(c, rho, e, dim):
     """Longitudinal speed sqrt((lambda + 2 mu) / rho); 1D: sqrt(E / rho)."""
     lam, mu = lame(c, dim)
     return jnp.sqrt((lam + 2 * mu) / rho)
 
 
-def fluid_wave_speed(c, rho, dim):
+def fluid_wave_speed(c, rho, e, dim):
     """sqrt(K / rho), m/s."""
     return jnp.sqrt(c["K"] / rho)
 
 
-def solid_bulk_modulus(c, rho, dim):
+def solid_bulk_modulus(c, rho, e, dim):
     """K = E / (3 (1 - 2 nu)); in 1D the bar modulus E (the only volumetric stiffness there)."""
     if dim == 1:
         return c["E"] * jnp.ones_like(rho)
     return c["E"] / (3 * (1 - 2 * c["nu"])) * jnp.ones_like(rho)
 
 
-def fluid_bulk_modulus(c, rho, dim):
+def fluid_bulk_modulus(c, rho, e, dim):
     """K, Pa."""
     return c["K"] * jnp.ones_like(rho)

@@ -1,9 +1,13 @@
 """The material library (package copy of materials.toml) and `Material` specs.
 
-Library keys give, for now, the elastic part of each material: solids as `hypoelastic` with
-rho0 (eos table), E and nu (elastic table); fluids as `linear_fluid` with K = rho0 c0^2 at the
-reference state. Users define their own materials in a scene (Python or the `[materials.<key>]`
-tables of a scene file).
+A library key gives the material's full hydrocode model by default (see hydro.py):
+  metals    mie_gruneisen + johnson_cook_thermal + spall (+ johnson_cook_failure or plastic_strain)
+  concrete  linear + drucker_prager + spall
+  air       ideal_gas (p0 = 1 atm);  water  stiffened_gas (p0 = 1 atm)
+and any other model kind whose constants the table holds: `library_material("al2024",
+"hypoelastic")` (rho0, E, nu), `library_material("water", "tait")`, `"linear_fluid"` (K = rho0 c^2 at
+rest). Users define their own materials in a scene (Python or the `[materials.<key>]` tables of a
+scene file, with `library = "<key>"` to start from a library entry and override constants).
 """
 from __future__ import annotations
 
@@ -28,15 +32,19 @@ class Material:
 
     @staticmethod
     def make(key: str, model: str, **constants: float) -> "Material":
-        """Build and validate, e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)."""
-        from jaxmpm.materials.models import MODELS, check_constant
+        """Build and validate, e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0) or
+        Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0). Model kinds:
+        jaxmpm.materials.models (one-piece kinds and 'eos[+strength][+failure...]' compositions)."""
+        from jaxmpm.materials.models import check_constant, model_of, split_model, MODELS
 
         where = f"materials.{key}"
         if not isinstance(key, str) or not key.isidentifier():
             raise ValueError(f"materials key {key!r} is invalid: allowed an identifier")
+        if not isinstance(model, str):
+            raise ValueError(f"{where}.model = {model!r} is invalid: allowed a model name")
         if model not in MODELS:
-            raise ValueError(f"{where}.model = {model!r} is invalid: allowed {' | '.join(MODELS)}")
-        needed = MODELS[model].constants
+            split_model(model, f"{where}.model")
+        needed = model_of(model).constants
         unknown = sorted(set(constants) - set(needed))
         if unknown:
             raise ValueError(f"{where}.{unknown[0]} is not a constant of model {model!r}: allowed {sorted(needed)}")
@@ -71,25 +79,59 @@ def known_keys() -> tuple[str, ...]:
     return tuple(sorted(library_table()))
 
 
-def library_material(key: str) -> Material:
-    """The elastic Material of a library key (see module docstring)."""
+def library_constants(key: str) -> dict[str, float]:
+    """Every constant the library holds for `key`, under the names the model kinds use."""
     table = library_table()
     if key not in table:
         raise ValueError(f"material key {key!r} is unknown: known keys are {list(known_keys())}")
     entry = table[key]
     eos = entry["eos"]
-    rho0 = float(eos["rho0"])
-    if "elastic" in entry:
-        el = entry["elastic"]
-        return Material.make(key, "hypoelastic", rho0=rho0, E=float(el["E"]), nu=float(el["nu"]))
-    model = eos["model"]
-    if model == "ideal_gas":
-        K = eos["gamma"] * eos["p0"]
-    elif model == "stiffened_gas":
-        K = eos["gamma"] * (eos["p0"] + eos["p_inf"])
-    else:
-        K = eos["K"]
-    return Material.make(key, "linear_fluid", rho0=rho0, K=float(K))
+    pool: dict[str, float] = {}
+    for sub in ("eos", "elastic", "strength", "thermal", "spall", "failure"):
+        for k, v in entry.get(sub, {}).items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                pool.setdefault(k, float(v))
+    if "tait" in entry:
+        pool["tait_n"], pool["tait_B"] = float(entry["tait"]["n"]), float(entry["tait"]["B"])
+    if "elastic" not in entry:       # fluids: bulk modulus at rest for linear_fluid
+        if eos["model"] == "ideal_gas":
+            pool["K"] = eos["gamma"] * eos["p0"]
+        elif eos["model"] == "stiffened_gas":
+            pool["K"] = eos["gamma"] * (eos["p0"] + eos["p_inf"])
+    return pool
+
+
+def default_model(key: str) -> str:
+    """The full model kind of a library key (module docstring)."""
+    entry = library_table()[key]
+    parts = [entry["eos"]["model"]]
+    strength = entry.get("strength", {}).get("model")
+    if strength == "johnson_cook":
+        parts.append("johnson_cook_thermal" if "thermal" in entry else "johnson_cook")
+    elif strength == "pressure_dependent":
+        parts.append("drucker_prager")
+    if "spall" in entry:
+        parts.append("spall")
+    failure = entry.get("failure", {}).get("model")
+    if failure in ("johnson_cook_failure", "plastic_strain"):
+        parts.append(failure)
+    return "+".join(parts)
+
+
+def library_material(key: str, model: str | None = None, new_key: str | None = None, **overrides: float) -> Material:
+    """The Material of a library key with its default model (or `model`), constants from the table
+    and `overrides` on top; named `new_key` (default: key)."""
+    from jaxmpm.materials.models import model_of
+
+    pool = library_constants(key)
+    model = default_model(key) if model is None else model
+    name = key if new_key is None else new_key
+    needed = model_of(model).constants if isinstance(model, str) else {}
+    missing = sorted(k for k in needed if k not in pool and k not in overrides)
+    if missing:
+        raise ValueError(f"materials.{name}: library key {key!r} has no {missing[0]!r} for model {model!r}: "
+                         f"give it (materials.{name}.{missing[0]} = ...) or choose another model")
+    return Material.make(name, model, **{**{k: pool[k] for k in needed if k in pool}, **overrides})
 
 
 def resolve_material(spec: Any, user: tuple = (), where: str = "material") -> Material:

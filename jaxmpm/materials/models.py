@@ -1,11 +1,53 @@
-"""Registry of constitutive model kinds: required constants with their allowed ranges, the
-stress update and the longitudinal wave speed. Each kind's physics lives in its own module."""
+"""Registry of constitutive model kinds: required constants with their allowed ranges, the update,
+wave speeds and the initial state. Each kind's physics lives in its own module.
+
+Two families:
+  * one-piece kinds on the total stress: linear_elastic, hypoelastic, linear_fluid (elastic.py),
+    maxwell (viscoelastic.py), transversely_isotropic (anisotropic.py);
+  * hydrocode compositions "eos[+strength][+failure...]" (hydro.py), e.g.
+    "mie_gruneisen+johnson_cook_thermal+spall": the pressure from an equation of state p(rho, e)
+    with the internal energy equation solved with it, a deviatoric strength model, failure criteria.
+`model_of(name)` returns the Model of either.
+
+All stress updates share one interface, update(c, mp, L, D, dt, work, q, alpha_of) -> MatPoint:
+  c        the constants (dict of scalars, SI)
+  mp       MatPoint of the particles at the start of the step plus their density after it
+  L        (N, d, d) velocity gradient seen by the material (1/s; with the closure E4 its
+           isotropic part is the material volume rate)
+  D        (N, d, d) rate of deformation of the velocity field (1/s), the rate the grid forces do
+           work with
+  dt       time step, s
+  work     (N,) dt * V_mid / m, so that de = work * (sigma_f : D) (sigma_f: the stress the grid sees)
+  q        (N,) artificial viscosity pressure at the end of the step (Pa) or None
+  alpha_of eps_ps -> alpha (E5) or None without the closure: the grid sees s - alpha p I (E8)
+"""
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
-from jaxmpm.materials import elastic
+import jax.numpy as jnp
+
+from jaxmpm.materials import anisotropic, elastic, hydro, viscoelastic
+
+
+class MatPoint(NamedTuple):
+    """Per-particle material state (N leading axis): F (N,d,d), stress (N,d,d) Pa, pressure (N,) Pa
+    (the isotropic pressure the stress holds, including artificial viscosity: for the hydrocode
+    models stress = s - pressure I with s the in-plane part of the 3D deviator), energy (N,) J/kg,
+    eps_ps (N,) equivalent plastic strain, damage (N,) in [0, 1] (1: failed), rho (N,) kg/m^3 at
+    the start of the step, rho_new (N,) after it."""
+
+    F: object
+    stress: object
+    pressure: object
+    energy: object
+    eps_ps: object
+    damage: object
+    rho: object
+    rho_new: object
 
 
 @dataclass(frozen=True)
@@ -13,39 +55,101 @@ class Model:
     """A constitutive model kind.
 
     constants: name -> (low, high, inclusive_low, inclusive_high, unit) allowed range.
-    update(c, F, stress, L, dt) -> (F, stress): c the constants (dict of scalars), F and stress
-      (N, d, d), L the velocity gradient (N, d, d) in 1/s, dt in s.
-    wave_speed(c, rho, dim) -> (N,) longitudinal wave speed in m/s at density rho (kg/m^3).
-    bulk_modulus(c, rho, dim) -> (N,) bulk modulus K in Pa (compressibility kappa = 1 / K, E6).
+    update: see the module docstring.
+    wave_speed(c, rho, e, dim) -> (N,) longitudinal wave speed (m/s) at density rho (kg/m^3) and
+      specific internal energy e (J/kg): the CFL speed.
+    bulk_modulus(c, rho, e, dim) -> (N,) bulk modulus K in Pa (compressibility kappa = 1 / K, E6).
+    initial(c) -> (p0, e0): pressure (Pa) and specific internal energy (J/kg) at rest at rho0.
     strain_energy(c, F) -> (N,) elastic energy per reference volume (J/m^3), where defined.
+    hydro: whether the model is a hydrocode composition (its stress = deviator - pressure I).
     """
 
     constants: dict
     update: Callable
     wave_speed: Callable
     bulk_modulus: Callable
+    initial: Callable = lambda c: (0.0, 0.0)
     strain_energy: Callable | None = None
+    hydro: bool = False
 
 
-_SOLID = {"rho0": (0.0, float("inf"), False, False, "kg/m^3"),
-          "E": (0.0, float("inf"), False, False, "Pa"),
-          "nu": (-1.0, 0.5, False, False, "")}
+_POS = (0.0, math.inf, False, False)
+_SOLID = {"rho0": _POS + ("kg/m^3",), "E": _POS + ("Pa",), "nu": (-1.0, 0.5, False, False, "")}
+
+
+def _total_stress(fn):
+    """Wrap a total-stress update fn(c, F, stress, L, dt) -> (F, stress) in the common interface:
+    pressure = -tr(stress) / d and the energy from the midpoint stress the grid sees."""
+
+    def update(c, mp, L, D, dt, work, q, alpha_of):
+        d = L.shape[-1]
+        F, sig = fn(c, mp.F, mp.stress, L, dt)
+        p = -jnp.trace(sig, axis1=-2, axis2=-1) / d
+        a = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)[:, None, None]
+        eye = jnp.eye(d, dtype=sig.dtype)
+        sig_f = 0.5 * (mp.stress + sig) + (1 - a) * (0.5 * (mp.pressure + p))[:, None, None] * eye
+        energy = mp.energy + work * jnp.sum(sig_f * D, axis=(-1, -2))
+        return mp._replace(F=F, stress=sig, pressure=p, energy=energy)
+
+    return update
+
 
 MODELS = {
-    "linear_elastic": Model(_SOLID, elastic.linear_elastic_update, elastic.solid_wave_speed,
-                            elastic.solid_bulk_modulus, elastic.linear_elastic_energy),
-    "hypoelastic": Model(_SOLID, elastic.hypoelastic_update, elastic.solid_wave_speed, elastic.solid_bulk_modulus),
-    "linear_fluid": Model({"rho0": (0.0, float("inf"), False, False, "kg/m^3"),
-                           "K": (0.0, float("inf"), False, False, "Pa")},
-                          elastic.linear_fluid_update, elastic.fluid_wave_speed, elastic.fluid_bulk_modulus),
+    "linear_elastic": Model(_SOLID, _total_stress(elastic.linear_elastic_update), elastic.solid_wave_speed,
+                            elastic.solid_bulk_modulus, strain_energy=elastic.linear_elastic_energy),
+    "hypoelastic": Model(_SOLID, _total_stress(elastic.hypoelastic_update), elastic.solid_wave_speed,
+                         elastic.solid_bulk_modulus),
+    "linear_fluid": Model({"rho0": _POS + ("kg/m^3",), "K": _POS + ("Pa",)},
+                          _total_stress(elastic.linear_fluid_update), elastic.fluid_wave_speed, elastic.fluid_bulk_modulus),
+    "maxwell": Model({**_SOLID, "tau": _POS + ("s",)}, _total_stress(viscoelastic.maxwell_update),
+                     elastic.solid_wave_speed, elastic.solid_bulk_modulus),
+    "transversely_isotropic": Model(anisotropic.CONSTANTS, _total_stress(anisotropic.update),
+                                    anisotropic.wave_speed, anisotropic.bulk_modulus),
 }
+
+
+def split_model(name: str, where: str = "model") -> tuple[str, tuple[str, ...], tuple[str, ...]]:
+    """(eos, strength parts, failure parts) of a composite model name; ValueError naming `where`."""
+    parts = name.split("+")
+    eos = parts[0]
+    if eos not in hydro.EOS:
+        allowed = " | ".join(list(MODELS) + [f"{e}[+strength][+failure]" for e in hydro.EOS])
+        raise ValueError(f"{where} = {name!r} is invalid: allowed {allowed}; strength: "
+                         f"{' | '.join(hydro.STRENGTH)}; failure: {' | '.join(hydro.FAILURE)}")
+    strength = tuple(p for p in parts[1:] if p in hydro.STRENGTH)
+    failure = tuple(p for p in parts[1:] if p in hydro.FAILURE)
+    unknown = [p for p in parts[1:] if p not in hydro.STRENGTH and p not in hydro.FAILURE]
+    if unknown:
+        raise ValueError(f"{where} = {name!r}: part {unknown[0]!r} is unknown: allowed strength "
+                         f"{' | '.join(hydro.STRENGTH)}, failure {' | '.join(hydro.FAILURE)}")
+    if len(strength) > 1:
+        raise ValueError(f"{where} = {name!r} names {len(strength)} strength models: allowed at most one")
+    if len(set(failure)) != len(failure):
+        raise ValueError(f"{where} = {name!r} repeats a failure model")
+    order = [eos] + list(strength) + list(failure)
+    if parts != order:
+        raise ValueError(f"{where} = {name!r} is out of order: write {'+'.join(order)!r} (eos, strength, failure)")
+    return eos, strength, failure
+
+
+@functools.lru_cache(maxsize=None)
+def model_of(name: str) -> Model:
+    """The Model of a kind name (one-piece or 'eos[+strength][+failure...]')."""
+    if name in MODELS:
+        return MODELS[name]
+    eos, strength, failure = split_model(name)
+    return hydro.compose(eos, strength[0] if strength else None, failure)
+
+
+def model_names() -> str:
+    """Human-readable list of the model kinds, for error messages."""
+    return (" | ".join(MODELS) + " | eos[+strength][+failure...] with eos " + " | ".join(hydro.EOS)
+            + ", strength " + " | ".join(hydro.STRENGTH) + ", failure " + " | ".join(hydro.FAILURE))
 
 
 def check_constant(model: str, name: str, value: float, where: str) -> None:
     """Raise ValueError naming `where` if `value` is outside the allowed range of `name`."""
-    import math
-
-    lo, hi, inc_lo, inc_hi, unit = MODELS[model].constants[name]
+    lo, hi, inc_lo, inc_hi, unit = model_of(model).constants[name]
     ok = math.isfinite(value) and (value >= lo if inc_lo else value > lo) and (value <= hi if inc_hi else value < hi)
     if not ok:
         rng = f"{'[' if inc_lo else '('}{lo:g}, {hi:g}{']' if inc_hi else ')'}"
