@@ -180,7 +180,7 @@ def flyer_plate(key, v0=2000.0, cells=400, model=None, t_end=2.5e-6):
     m = library_material(key, model)
     scene = Scene(grid=Grid(cells=(cells,), h=0.05 / cells), materials=(m,),
                   phases=(Phase("flyer", key, Box((0.0,), (0.02,)), velocity=(v0,)), Phase("target", key, Box((0.02,), (0.05,)))),
-                  artificial_viscosity=(0.2, 2.0), cfl=0.3, t_end=t_end, n_out=5)
+                  artificial_viscosity=(0.5, 2.0), cfl=0.3, t_end=t_end, n_out=5)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
