@@ -85,14 +85,32 @@ class DDMPGrid:
     theta: jax.Array  # (K, *nodes) nodal fill of (R1)
 
 
-def build(grid, nodal_volume, cell_occupied):
+FILL_RAMP = 0.25
+
+
+def cell_weight(tc, cell_volume, h):
+    """(R2) weight of each cell in the DDMP integrals: 1 where the field's particles hold at least
+    FILL_RAMP of the volume the nodal fill theta puts in the cell, falling linearly to 0 with no
+    particle. A cell that holds only a trace of material (a dust of 1e-12 of its neighbours' mass)
+    then takes almost no stress from its neighbours' nodes, which would otherwise accelerate its
+    nodes without bound (the binary rule counted any particle as a full cell: a block beside such
+    dust reached 1e11 m/s in one step); the force on a trace node is at most 1 / FILL_RAMP times the
+    one its own material gives it. Cells holding a fair share of material count fully, as before,
+    and any nonnegative weights keep E11/E12 adjoint and exact for linear fields."""
+    d = tc.shape[-1].bit_length() - 1
+    expected = jnp.sum(tc, axis=-1) * (h**d / 2**d)            # integral of theta over the cell
+    return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
+
+
+def build(grid, nodal_volume, cell_volume):
     """Assemble V and A from the nodal particle volume (K, *nodes) = sum_p V_p S_n(x_p) and the
-    cell occupancy (K, *cells) (> 0 where the field has particles)."""
+    particle volume in each cell (K, *cells)."""
     d = grid.dim
     T0, Tg = cell_tensors(d, grid.h)
     dtype = nodal_volume.dtype
     theta = jnp.clip(nodal_volume / jnp.asarray(node_support(grid), dtype), 0.0, 1.0)    # (R1)
-    tc = corners(theta, d) * (cell_occupied > 0)[..., None].astype(dtype)                 # (R2)
+    tc = corners(theta, d)
+    tc = tc * cell_weight(tc, cell_volume, grid.h)[..., None]                              # (R2)
     Vc = jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
     A = jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))
     V = add_corners(Vc, d)                                                               # (R3)

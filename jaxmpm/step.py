@@ -20,7 +20,7 @@ from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress, pressure
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
-from jaxmpm.transfer import cell_count, gather, interpolate, scatter
+from jaxmpm.transfer import cell_sum, gather, interpolate, scatter
 
 
 @dataclass(frozen=True)
@@ -168,10 +168,11 @@ def particle_to_grid(lay, params, st, state, beta):
     return _scatter_named(lay, st, parts)
 
 
-def ddmp_operators(lay, st, nodal_volume, dtype):
-    """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) at stencil st."""
+def ddmp_operators(lay, st, nodal_volume, dtype, volume):
+    """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
+    particle volumes (N,) at stencil st."""
     scene = lay.scene
-    cells = cell_count(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), dtype)
+    cells = cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype))
     return ddmp.build(scene.grid, nodal_volume.reshape(_grid_shape(lay)),
                       cells.reshape((lay.n_fields,) + scene.grid.cells))
 
@@ -220,7 +221,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
-    dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype) if (beta is not None or scene.has_interface_forces) else None
+    dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
     v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
     f = _nodal_stress_force(lay, dg, g)
@@ -241,16 +242,17 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     return v, a, dg, p_amb
 
 
-def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None):
+def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=None):
     """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
-    (nodal_volume (K, n_nodes) = sum_p V_p S_np given) the blend (E12):
+    (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators dg or the particle
+    volumes (N,) to build them) the blend (E12):
     L_p = beta_p sum_i v_i (x) grad S_i(x_p) + (1 - beta_p) sum_j S_j(x_p) L-bar_j. Returns (N, d, d)."""
     d = lay.dim
     L = jnp.einsum("nsa,nsb->nab", gather(st, lay.field, v), st.dw)
     if nodal_volume is None:
         return L
     beta = ddmp_beta(st.xi)
-    dg = ddmp_operators(lay, st, nodal_volume, v.dtype) if dg is None else dg
+    dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
     Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(_grid_shape(lay) + (d,)))
     Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
     return beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar                  # (E12)
@@ -264,7 +266,7 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     if ddmp_on or lay.scene.has_exchange:
         vol_n = scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)[..., 0]
     v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
-    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None)
+    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume)
 
 
 def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):

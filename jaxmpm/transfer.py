@@ -40,5 +40,10 @@ def interpolate(st, field, nodal):
 
 def cell_count(st, field, n_fields, n_cells, dtype):
     """(K, n_cells) number of particles of each field in each cell."""
+    return cell_sum(st, field, n_fields, n_cells, jnp.ones(st.cell.shape[0], dtype))
+
+
+def cell_sum(st, field, n_fields, n_cells, values):
+    """(K, n_cells) sum of a particle quantity (N,) over the particles of each field in each cell."""
     rows = st.cell if field is None else st.cell + field * n_cells
-    return jnp.zeros(n_fields * n_cells, dtype).at[rows].add(1.0).reshape(n_fields, n_cells)
+    return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)

@@ -46,7 +46,7 @@ def test_linear_field_gives_exact_gradient(dim, shape, wall):
     v = _apply_bc(lay, v)
     st = stencil(scene, state.x)
     vol = scatter_weighted(st, None, state.volume[:, None], 1, lay.n_nodes)[..., 0] if shape == "ddmp" else None
-    L = particle_velocity_gradient(lay, st, v, vol)
+    L = particle_velocity_gradient(lay, st, v, vol, volume=state.volume)
     np.testing.assert_allclose(np.asarray(L), np.broadcast_to(A, L.shape), rtol=0, atol=1e-12)
     # the patch includes particles in the cells at the wall / free surface
     x = np.asarray(state.x)
