@@ -102,7 +102,7 @@ def cmd_run(args) -> int:
                        + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0))
         final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress,
                                          restart_file=str(rfile) if args.restart_every else None,
-                                         restart_every=args.restart_every or 1)
+                                         restart_every=args.restart_every or 1, debug=args.debug)
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
@@ -163,6 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace existing output files")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--x64", action="store_true", help="double precision (float64)")
+    run.add_argument("--debug", action="store_true",
+                     help="check every step under checkify (slower): stop at the first non-finite or out-of-grid "
+                          "particle, or the first NaN, naming the step")
     run.add_argument("--restart-every", type=int, default=20, metavar="N",
                      help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
     run.add_argument("--resume", metavar="DIR",

@@ -91,8 +91,13 @@ def check_params(scene, params: Params) -> None:
     names = scene.phase_names()
     if set(params.phases) != set(names):
         raise ValueError(f"params.phases has phases {sorted(params.phases)}: the scene has {sorted(names)}")
+    d = scene.dim
     for p in scene.phases:
         model = scene.material(p).model
+        missing = sorted(set(model_of(model).constants) - set(params.phases[p.name]))
+        if missing:
+            raise ValueError(f"params.phases[{p.name!r}][{missing[0]!r}] is missing: model {model!r} needs "
+                             f"{sorted(model_of(model).constants)}")
         for k, v in params.phases[p.name].items():
             if k not in model_of(model).constants:
                 raise ValueError(f"params.phases[{p.name!r}][{k!r}] is not a constant of model {model!r}")
@@ -102,7 +107,18 @@ def check_params(scene, params: Params) -> None:
     if _is_concrete(params.cfl):
         for x in np.atleast_1d(np.asarray(params.cfl, dtype=float)):
             if not 0 < x <= 1:
-                raise ValueError(f"params.cfl = {x!r} is invalid: allowed (0, 1]")
+                raise ValueError(f"params.cfl = {float(x)!r} is invalid: allowed (0, 1]")
+    for name, value in (("gravity", params.gravity), *((f"body_force[{k!r}]", b) for k, b in params.body_force.items())):
+        if _is_concrete(value):
+            a = np.asarray(value)
+            if a.shape[-1:] != (d,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"params.{name} = {a.tolist()} is invalid: allowed {d} finite numbers (m/s^2, one per axis)")
+    if set(params.body_force) != set(scene.phase_names()):
+        raise ValueError(f"params.body_force has phases {sorted(params.body_force)}: the scene has {sorted(scene.phase_names())}")
+    if _is_concrete(params.gravity_ramp):
+        a = np.asarray(params.gravity_ramp)
+        if np.any(a < 0) or not np.all(np.isfinite(a)):
+            raise ValueError(f"params.gravity_ramp = {a} is invalid: allowed >= 0 s")
     unused = []
     if scene.gravity is None and _is_concrete(params.gravity) and np.any(np.asarray(params.gravity) != 0):
         unused.append("gravity (the scene has no gravity effect)")

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm.params import check_params
-from jaxmpm.state import phase_slices
+from jaxmpm.state import check_state, phase_slices
 from jaxmpm.step import cfl_time_step, make_step
 
 
@@ -66,6 +66,32 @@ def _chunk_fn(scene, length):
         return jax.lax.scan(body, state, None, length=length)[0]
 
     return run
+
+
+@functools.lru_cache(maxsize=8)
+def _checked_chunk_fn(scene, length):
+    """The chunk of `_chunk_fn` under `jax.experimental.checkify` (simulate(..., debug=True)): every
+    step checks that all particle fields are finite and inside the grid, and every primitive that
+    makes a NaN is reported (nan_checks) with its source line. Returns run -> (error, state); the
+    first failure names the step of the chunk and the time."""
+    from jax.experimental import checkify
+
+    step = make_step(scene)
+    margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
+    lo = np.asarray(scene.grid.origin) + margin
+    hi = np.asarray(scene.grid.hi) - margin
+
+    def run(params, state, t_stop, dt):
+        def body(s, i):
+            new = step(params, s, t_stop, dt)
+            finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(new, n))) for n in ("x", "v", "stress", "volume", "energy")]))
+            checkify.check(finite, "step {i} of the chunk (t = {t} s): a particle field is not finite", i=i, t=new.t)
+            checkify.check(jnp.all((new.x >= lo) & (new.x <= hi)),
+                           "step {i} of the chunk (t = {t} s): a particle left the grid", i=i, t=new.t)
+            return new, None
+        return jax.lax.scan(body, state, jnp.arange(length))[0]
+
+    return jax.jit(checkify.checkify(run, errors=checkify.user_checks | checkify.nan_checks))
 
 
 @functools.lru_cache(maxsize=32)
@@ -129,7 +155,7 @@ def find_nonfinite(scene, state):
 
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
-             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10):
+             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -140,6 +166,9 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     checkpoint: jax.checkpoint each step (fixed-length driver). chunk: steps per jitted chunk.
     restart_file: path of a restart file to save every `restart_every` chunks and at each output
       (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically.
+    debug: run the host driver's chunks under `jax.experimental.checkify` (slower): the run stops
+      at the first step with a non-finite or out-of-grid particle, naming the step and time, or at
+      the first primitive that makes a NaN, naming it and its source line.
     """
     t_end = scene.t_end if t_end is None else float(t_end)
     n_out = scene.n_out if n_out is None else int(n_out)
@@ -148,6 +177,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     traced = _traced((params, state))
     if not traced:
         check_params(scene, params)
+        check_state(scene, state)
         if not t_end > float(state.t):
             raise ValueError(f"t_end = {t_end!r} is invalid: allowed > state.t = {float(state.t)} s")
         if dt is not None:
@@ -167,17 +197,26 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
         raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
     return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk,
-                        restart_file=restart_file, restart_every=restart_every)
+                        restart_file=restart_file, restart_every=restart_every, debug=debug)
 
 
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0):
+                 start_out=0, restart_file=None, restart_every=0, debug=False):
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = plan_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000))
     run = _chunk_fn(scene, int(chunk))
+    if debug:
+        checked = _checked_chunk_fn(scene, int(chunk))
+
+        def run(params, state, stop, dt):
+            err, new = checked(params, state, stop, dt)
+            if err.get() is not None:
+                raise FloatingPointError(f"{scene.name}: checkify: {err.get()} (in chunk {n_chunks + 1} of {chunk} steps, "
+                                         f"started at t = {float(state.t):.6g} s)")
+            return new
     health = _health_fn(scene)
     bar = None
     if progress:

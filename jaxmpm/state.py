@@ -131,3 +131,54 @@ def init_state(scene, params) -> State:
 def stencil_offsets(dim: int, width: int) -> np.ndarray:
     """(width^dim, dim) integer offsets of a tensor-product stencil, first axis slowest."""
     return np.array(list(itertools.product(range(width), repeat=dim)), dtype=np.int32).reshape(-1, dim)
+
+
+def check_state(scene, state: State) -> None:
+    """Raise ValueError naming the field, the particle (index and phase) and the allowed range if a
+    concrete State does not fit the scene: array shapes, finite values, mass and volume > 0,
+    damage in [0, 1], plastic strain >= 0, particles inside the grid."""
+    if not isinstance(state, State):
+        raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State")
+    slices = phase_slices(scene)
+    n, d = slices[-1].stop, scene.dim
+
+    def phase_of(i):
+        return next(p.name for p, sl in zip(scene.phases, slices) if sl.start <= i < sl.stop)
+
+    shapes = {"x": (n, d), "v": (n, d), "mass": (n,), "volume": (n,), "F": (n, d, d), "stress": (n, d, d),
+              "energy": (n,), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
+    if np.shape(state.t) != ():
+        raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
+    for name, shape in shapes.items():
+        a = getattr(state, name)
+        if a is None:
+            continue
+        if tuple(np.shape(a)) != shape:
+            raise ValueError(f"state.{name} has shape {tuple(np.shape(a))}: the scene needs {shape}")
+        a = np.asarray(a)
+        bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"state.{name} of particle {i} (phase {phase_of(i)!r}) is not finite: allowed finite values")
+    for name, lo, hi, unit in (("mass", 0.0, None, "kg"), ("volume", 0.0, None, "m^3"),
+                               ("damage", 0.0, 1.0, ""), ("eps_ps", 0.0, None, "")):
+        a = getattr(state, name)
+        if a is None:
+            continue
+        a = np.asarray(a)
+        strict = name in ("mass", "volume")
+        bad = (a <= lo if strict else a < lo) | (a > hi if hi is not None else False)
+        if bad.any():
+            i = int(np.argmax(bad))
+            rng = f"{'>' if strict else '>='} {lo:g}" + (f" and <= {hi:g}" if hi is not None else "")
+            raise ValueError(f"state.{name} = {float(a[i])!r} of particle {i} (phase {phase_of(i)!r}) is invalid: "
+                             f"allowed {rng}{' ' + unit if unit else ''}")
+    margin = 0.5 if scene.shape == "bspline2" else 0.0
+    lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
+    hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
+    x = np.asarray(state.x)
+    out = np.any((x < lo) | (x > hi), axis=1)
+    if out.any():
+        i = int(np.argmax(out))
+        raise ValueError(f"state.x of particle {i} (phase {phase_of(i)!r}) = {x[i].tolist()} m lies outside the grid: "
+                         f"allowed [{lo.tolist()}, {hi.tolist()}] m")

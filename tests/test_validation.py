@@ -1,7 +1,9 @@
 """Bad input gets a clear ValueError that names the field and the allowed range."""
 import dataclasses
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import jaxmpm
@@ -144,3 +146,31 @@ def test_fixed_dt_that_becomes_unstable_stops_the_run():
     stressed = dataclasses.replace(state, stress=state.stress.at[:].set(-2e6 * jnp.eye(2)))
     with pytest.raises(FloatingPointError, match=r"fixed dt = .* exceeds the CFL limit"):
         jaxmpm.simulate(scene, params, stressed, dt=0.999 * limit, progress=False)
+
+
+def test_debug_mode_names_the_step_where_a_particle_leaves_the_grid():
+    """simulate(..., debug=True) runs the chunks under checkify and stops at the step itself."""
+    scene = _scene(phases=(Phase("block", "m", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    with pytest.raises(FloatingPointError, match=r"checkify: step \d+ of the chunk \(t = .* s\): a particle left the grid"):
+        jaxmpm.simulate(scene, params, state, progress=False, debug=True)
+
+
+def test_debug_mode_names_the_first_step_with_a_non_finite_field():
+    scene = _scene(t_end=0.01)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    bad = dataclasses.replace(state, stress=state.stress.at[3].set(1e300))   # overflows: inf - inf
+    with pytest.raises(FloatingPointError, match=r"checkify: step 0 of the chunk \(t = 1e-06 s\): a particle field is not finite"):
+        jaxmpm.simulate(scene, params, bad, progress=False, debug=True, dt=1e-6)
+
+
+def test_debug_mode_gives_the_same_run():
+    scene = _scene(phases=(Phase("block", "m", Box((0.2, 0.4), (0.4, 0.6)), velocity=(10.0, 0.0)),), t_end=0.005)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    a, _ = jaxmpm.simulate(scene, params, state, progress=False)
+    b, _ = jaxmpm.simulate(scene, params, state, progress=False, debug=True)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))

@@ -1,0 +1,203 @@
+"""The table of every bad input we try and the message it gets (issue: hard cases and bad input).
+
+Each row: a kind of mistake, what is done, and a regular expression the error message must match
+(naming the field and the allowed range). `python tests/test_bad_input.py` prints the table with
+the actual messages as Markdown (docs/bad_input.md is that output).
+"""
+import dataclasses
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmpm
+from jaxmpm import Boundary, Box, Grid, Material, Phase, Scene, Sphere
+from jaxmpm.scenefile import scene_from_toml
+
+M = Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
+GAS = Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1e5)
+
+
+def scene(**kw):
+    args = dict(grid=Grid(cells=(10, 10), h=0.1), materials=(M,), phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6))),))
+    args.update(kw)
+    return Scene(**args)
+
+
+def two_fields(**kw):
+    return scene(phases=(Phase("a", "m", Box((0.2, 0.2), (0.4, 0.4)), field=0),
+                         Phase("b", "m", Box((0.5, 0.5), (0.7, 0.7)), field=1)), **kw)
+
+
+def params_of(**changes):
+    s = scene()
+    return s, dataclasses.replace(jaxmpm.default_params(s), **changes)
+
+
+def run_with_params(**changes):
+    s, p = params_of(**changes)
+    jaxmpm.init_state(s, p)
+
+
+def run_with_state(**changes):
+    s = scene()
+    p = jaxmpm.default_params(s)
+    st = jaxmpm.init_state(s, p)
+    jaxmpm.simulate(s, p, dataclasses.replace(st, **{k: f(st) for k, f in changes.items()}), progress=False)
+
+
+def simulate_with(**kw):
+    s = scene()
+    p = jaxmpm.default_params(s)
+    jaxmpm.simulate(s, p, jaxmpm.init_state(s, p), progress=False, **kw)
+
+
+FILE = """
+[grid]
+cells = [10, 10]
+h = 0.1
+[materials.m]
+model = "hypoelastic"
+rho0 = 1000.0
+E = 1e6
+nu = 0.3
+[[phase]]
+name = "block"
+material = "m"
+geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }
+"""
+
+CASES = [
+    # --- grid and geometry
+    ("grid cells not integers", lambda: Grid(cells=(10.5, 10), h=0.1), r"grid\.cells"),
+    ("grid with one cell", lambda: Grid(cells=(1, 10), h=0.1), r"grid\.cells\[0\] = 1 is invalid: allowed >= 2"),
+    ("grid of 4 dimensions", lambda: Grid(cells=(2, 2, 2, 2), h=0.1), r"grid\.cells = .* allowed a list of 1 to 3 integers"),
+    ("negative cell size", lambda: Grid(cells=(10, 10), h=-0.1), r"grid\.h = -0\.1 is invalid: allowed > 0 m"),
+    ("box with hi below lo", lambda: Box((0.5, 0.2), (0.4, 0.6)), r"geometry\.hi\[0\] = 0\.4 is invalid: allowed > geometry\.lo\[0\]"),
+    ("sphere with negative radius", lambda: Sphere((0.5, 0.5), -0.1), r"geometry\.radius = -0\.1 is invalid: allowed > 0 m"),
+    ("non-finite coordinate", lambda: Box((0.0, float("nan")), (0.5, 0.5)), r"geometry\.lo = .* allowed finite numbers"),
+    ("geometry of the wrong dimension", lambda: scene(phases=(Phase("b", "m", Box((0.2,), (0.6,))),)),
+     r"phase\.b\.geometry = .* allowed 2 coordinates per point"),
+    ("particle outside the grid", lambda: scene(phases=(Phase("b", "m", Box((0.5, 0.5), (1.2, 0.6))),)),
+     r"phase\.b\.geometry = .* is invalid: allowed inside the grid: axis x in \[0\.0, 1\.0\] m"),
+    ("phase with no particle", lambda: scene(phases=(Phase("b", "m", Sphere((0.5, 0.5), 1e-4), ppc=1),)),
+     r"phase\.b\.geometry = .* holds no particle"),
+    # --- phases and fields
+    ("phase name not an identifier", lambda: Phase("a b", "m", Box((0.2, 0.2), (0.6, 0.6))), r"phase\.name = 'a b' is invalid"),
+    ("two phases with one name", lambda: scene(phases=(Phase("b", "m", Box((0.2, 0.2), (0.4, 0.4))), Phase("b", "m", Box((0.5, 0.5), (0.7, 0.7))))),
+     r"phase\.name = 'b' is invalid: allowed unique names"),
+    ("negative field index", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), field=-1), r"phase\.b\.field = -1 is invalid: allowed an integer >= 0"),
+    ("field that does not exist (gap)", lambda: scene(phases=(Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), field=1),)),
+     r"phase\.b\.field = 1 is invalid: allowed fields numbered 0\.\.0 without gaps"),
+    ("too many particles per cell", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), ppc=9), r"phase\.b\.ppc = 9 is invalid: allowed an integer in \[1, 8\]"),
+    ("volume fraction above 1", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), fraction=1.5), r"phase\.b\.fraction = 1\.5 is invalid: allowed \(0, 1\]"),
+    ("unknown material key", lambda: scene(phases=(Phase("b", "unobtainium", Box((0.2, 0.2), (0.6, 0.6))),)),
+     r"phase\.b\.material = 'unobtainium' is an unknown material key: known keys are \[.*'al2024'"),
+    # --- materials
+    ("negative density", lambda: Material.make("x", "hypoelastic", rho0=-1.0, E=1e6, nu=0.3), r"materials\.x\.rho0 = -1\.0 is invalid: allowed \(0, inf\) kg/m\^3"),
+    ("zero Young's modulus", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=0.0, nu=0.3), r"materials\.x\.E = 0\.0 is invalid: allowed \(0, inf\) Pa"),
+    ("Poisson's ratio 0.5", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=1.0, nu=0.5), r"materials\.x\.nu = 0\.5 is invalid: allowed \(-1, 0\.5\)"),
+    ("negative relaxation time", lambda: Material.make("x", "maxwell", rho0=1.0, E=1.0, nu=0.3, tau=-1.0), r"materials\.x\.tau = -1\.0 is invalid: allowed \(0, inf\) s"),
+    ("gas gamma <= 1", lambda: Material.make("x", "ideal_gas", rho0=1.0, gamma=1.0, p0=0.0), r"materials\.x\.gamma = 1\.0 is invalid: allowed \(1, inf\)"),
+    ("Hugoniot slope s <= 0", lambda: Material.make("x", "mie_gruneisen", rho0=1.0, c0=1.0, s=0.0, gamma0=2.0, a=0.0), r"materials\.x\.s = 0\.0 is invalid"),
+    ("hardening exponent n > 1", lambda: Material.make("x", "linear+johnson_cook", rho0=1.0, K=1.0, G=1.0, A=1.0, B=1.0, n=2.0, C=0.0, epsdot0=1.0),
+     r"materials\.x\.n = 2\.0 is invalid: allowed \(0, 1\]"),
+    ("missing constant", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=1.0), r"materials\.x\.nu is missing: model 'hypoelastic' needs"),
+    ("constant of another model", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=1.0, nu=0.3, K=1.0), r"materials\.x\.K is not a constant of model 'hypoelastic'"),
+    ("constant not a number", lambda: Material.make("x", "hypoelastic", rho0=1.0, E="hard", nu=0.3), r"materials\.x\.E = 'hard' is invalid: allowed a number"),
+    ("unknown model kind", lambda: Material.make("x", "rubbery", rho0=1.0), r"materials\.x\.model = 'rubbery' is invalid: allowed linear_elastic"),
+    ("unknown part of a composition", lambda: Material.make("x", "ideal_gas+rubber", rho0=1.0), r"part 'rubber' is unknown"),
+    ("composition out of order", lambda: Material.make("x", "linear+spall+elastic", rho0=1.0), r"out of order: write 'linear\+elastic\+spall'"),
+    ("two strength models", lambda: Material.make("x", "linear+elastic+von_mises", rho0=1.0), r"names 2 strength models"),
+    ("library model the table cannot fill", lambda: jaxmpm.materials.library_material("al2024", "mie_gruneisen+von_mises"),
+     r"library key 'al2024' has no 'Y'"),
+    # --- scene options
+    ("unknown shape function", lambda: scene(shape="cubic"), r"shape = 'cubic' is invalid: allowed linear \| ddmp \| bspline2"),
+    ("unknown transfer", lambda: scene(transfer="flip"), r"transfer = 'flip' is invalid: allowed musl \| seed"),
+    ("APIC without B-splines", lambda: scene(transfer="apic"), r"transfer = 'apic' is invalid: allowed 'apic' only with shape = 'bspline2'"),
+    ("B-splines with two fields", lambda: two_fields(shape="bspline2"), r"shape = 'bspline2' is invalid: allowed 'ddmp' or 'linear'"),
+    ("gravity with the wrong length", lambda: scene(gravity=(0.0, -9.8, 0.0)), r"effects\.gravity = .* allowed a list of 2 numbers"),
+    ("negative gravity ramp", lambda: scene(gravity=(0.0, -9.8), gravity_ramp=-1.0), r"effects\.gravity_ramp = -1\.0 is invalid: allowed >= 0 s"),
+    ("negative damping", lambda: scene(damping=-1.0), r"effects\.damping = -1\.0 is invalid: allowed >= 0 1/s"),
+    ("negative drag coefficient", lambda: two_fields(drag=-1.0), r"effects\.drag = -1\.0 is invalid: allowed >= 0"),
+    ("zero drag length", lambda: two_fields(drag=1.0, drag_length=0.0), r"effects\.drag_length = 0\.0 is invalid: allowed > 0 m"),
+    ("C_h <= 0", lambda: scene(c_h=0.0), r"effects\.c_h = 0\.0 is invalid: allowed > 0"),
+    ("negative artificial viscosity", lambda: scene(materials=(GAS,), phases=(Phase("g", "gas", Box((0.2, 0.2), (0.6, 0.6))),),
+                                                   artificial_viscosity=(-0.1, 1.0)), r"effects\.artificial_viscosity = \[-0\.1, 1\.0\] is invalid"),
+    ("artificial viscosity on a total-stress model", lambda: scene(artificial_viscosity=(0.5, 2.0)),
+     r"effects\.artificial_viscosity .* only with equation-of-state models: phase 'block' uses 'hypoelastic'"),
+    ("unknown boundary face", lambda: Boundary(faces=(("z_top", "slip"),)), r"boundary\.z_top = 'slip' is invalid: allowed face names"),
+    ("unknown boundary kind", lambda: Boundary(faces=(("x_lo", "sticky"),)), r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| fixed"),
+    ("CFL above 1", lambda: scene(cfl=1.5), r"cfl = 1\.5 is invalid: allowed \(0, 1\]"),
+    ("negative end time", lambda: scene(t_end=-1.0), r"t_end = -1\.0 is invalid: allowed > 0 s"),
+    ("zero outputs", lambda: scene(n_out=0), r"output\.n_out = 0 is invalid: allowed an integer >= 1"),
+    # --- Params
+    ("Params constant out of range", lambda: run_with_params(phases={"block": {"rho0": jnp.asarray(-1.0), "E": jnp.asarray(1e6), "nu": jnp.asarray(0.3)}}),
+     r"params\.phases\['block'\]\['rho0'\] = -1\.0 is invalid: allowed \(0, inf\)"),
+    ("Params missing a constant", lambda: run_with_params(phases={"block": {"rho0": jnp.asarray(1.0), "E": jnp.asarray(1e6)}}),
+     r"params\.phases\['block'\]\['nu'\] is missing"),
+    ("Params for another scene", lambda: run_with_params(phases={"other": {}}), r"params\.phases has phases \['other'\]: the scene has \['block'\]"),
+    ("Params CFL out of range", lambda: run_with_params(cfl=jnp.asarray(2.0)), r"params\.cfl = 2\.0 is invalid: allowed \(0, 1\]"),
+    ("Params gravity of the wrong length", lambda: run_with_params(gravity=jnp.zeros(3)), r"params\.gravity = .* allowed 2 finite numbers"),
+    ("Params gravity without the effect", lambda: run_with_params(gravity=jnp.asarray([0.0, -9.8])), r"params\.gravity \(the scene has no gravity effect\)"),
+    ("Params negative ramp", lambda: run_with_params(gravity_ramp=jnp.asarray(-1.0)), r"params\.gravity_ramp = -1\.0 is invalid: allowed >= 0 s"),
+    ("Params negative drag", lambda: run_with_params(drag_coefficient=jnp.asarray(-1.0)), r"params\.drag_coefficient = -1\.0 is invalid: allowed >= 0"),
+    ("Params non-finite C_h", lambda: run_with_params(c_h=jnp.asarray(float("nan"))), r"params\.c_h = nan is invalid: allowed > 0"),
+    ("Params body force of the wrong length", lambda: run_with_params(body_force={"block": jnp.zeros(3)}), r"params\.body_force\['block'\] = .* allowed 2 finite numbers"),
+    # --- State
+    ("negative particle volume", lambda: run_with_state(volume=lambda s: s.volume.at[5].set(-1.0)),
+     r"state\.volume = -1\.0 of particle 5 \(phase 'block'\) is invalid: allowed > 0 m\^3"),
+    ("non-finite velocity", lambda: run_with_state(v=lambda s: s.v.at[7, 1].set(jnp.nan)), r"state\.v of particle 7 \(phase 'block'\) is not finite"),
+    ("damage above 1", lambda: run_with_state(damage=lambda s: s.damage.at[2].set(1.5)), r"state\.damage = 1\.5 of particle 2 .* allowed >= 0 and <= 1"),
+    ("particle moved outside the grid", lambda: run_with_state(x=lambda s: s.x.at[0, 0].set(2.0)), r"state\.x of particle 0 .* lies outside the grid"),
+    ("State of another scene", lambda: run_with_state(x=lambda s: s.x[:-1]), r"state\.x has shape .* the scene needs"),
+    # --- running
+    ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(cfl = 0\.3, h = 0\.1 m\)"),
+    ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed > state\.t = 0\.0 s"),
+    ("zero outputs to simulate", lambda: simulate_with(n_out=0), r"n_out = 0 is invalid: allowed an integer >= 1"),
+    ("restart every 0 chunks", lambda: simulate_with(restart_file="x.h5", restart_every=0), r"restart_every = 0 is invalid: allowed an integer >= 1"),
+    ("n_steps missing under jit", lambda: jax.jit(lambda p: jaxmpm.simulate(scene(), p, jaxmpm.init_state(scene(), jaxmpm.default_params(scene())))[0].t)(jaxmpm.default_params(scene())),
+     r"n_steps is required inside jit/grad/vmap"),
+    # --- scene files
+    ("unknown key in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 0.1\nspacing = 2")), r"grid\.spacing is an unknown key"),
+    ("malformed TOML", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = = 0.1")), r"malformed TOML: .*line"),
+    ("wrong type in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 'small'")), r"grid\.h = 'small' is invalid"),
+    ("material without a model", lambda: scene_from_toml(FILE.replace('model = "hypoelastic"\n', "")), r"materials\.m\.model is missing: allowed"),
+    ("phase without geometry", lambda: scene_from_toml(FILE.replace('geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }', "")),
+     r"phase\[0\]\.geometry is missing"),
+    ("scene file without phases", lambda: scene_from_toml(FILE.split("[[phase]]")[0]), r"phase is missing: a scene needs at least one \[\[phase\]\]"),
+    ("library material with an unknown key", lambda: scene_from_toml(FILE.replace('model = "hypoelastic"\nrho0 = 1000.0\nE = 1e6\nnu = 0.3', 'library = "adamantium"')),
+     r"material key 'adamantium' is unknown: known keys are"),
+]
+
+
+@pytest.mark.parametrize("kind, action, pattern", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_gets_a_clear_error(kind, action, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        action()
+
+
+def test_the_table_has_at_least_40_kinds_and_the_docs_list_them_all():
+    assert len({c[0] for c in CASES}) == len(CASES) >= 40
+    import pathlib
+
+    doc = (pathlib.Path(__file__).parents[1] / "docs" / "bad_input.md").read_text()
+    missing = [c[0] for c in CASES if f"| {c[0]} |" not in doc]
+    assert not missing, f"regenerate docs/bad_input.md (python tests/test_bad_input.py): {missing}"
+
+
+if __name__ == "__main__":
+    jax.config.update("jax_enable_x64", True)
+    print("# Bad input and the errors it gets\n\nGenerated by `python tests/test_bad_input.py` from the table the tests "
+          "check (tests/test_bad_input.py).\n")
+    print("| # | bad input | message |\n|---|---|---|")
+    for i, (kind, action, _) in enumerate(CASES, 1):
+        try:
+            action()
+            msg = "(no error)"
+        except ValueError as e:
+            msg = str(e).replace("|", "\\|").replace("\n", " ")
+        print(f"| {i} | {kind} | {msg} |")
+    sys.exit(0)
