@@ -111,9 +111,9 @@ def cmd_run(args) -> int:
     print(f"done in {wall:.3g} s wall time (compilation included)")
     print(f"  {'':<16}{'start':>14}{'end':>14}")
     print(f"  {'t (s)':<16}{start['t']:>14.6g}{end['t']:>14.6g}")
-    print(f"  {'mass (' + io.units('mass', scene.dim) + ')':<16}{start['mass']:>14.6g}{end['mass']:>14.6g}")
+    print(f"  {'mass (' + io.units('mass', scene.dim, scene.axisymmetric) + ')':<16}{start['mass']:>14.6g}{end['mass']:>14.6g}")
     for k in ("kinetic", "internal", "total_energy"):
-        label = f"{k.replace('_energy', '')} ({io.units(k, scene.dim)})"
+        label = f"{k.replace('_energy', '')} ({io.units(k, scene.dim, scene.axisymmetric)})"
         print(f"  {label:<16}{start[k]:>14.6g}{end[k]:>14.6g}")
     print("wrote:")
     for p in (h5, xdmf, png) + ((rfile,) if args.restart_every and not args.resume else ()):

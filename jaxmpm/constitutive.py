@@ -23,7 +23,7 @@ def pressure(lay, state):
     scene = lay.scene
     if all(model_of(scene.material(p).model).hydro for p in scene.phases):
         return state.pressure
-    tr = -jnp.trace(state.stress, axis1=1, axis2=2) / lay.dim
+    tr = -jnp.trace(state.stress, axis1=1, axis2=2) / state.stress.shape[-1]
     return jnp.concatenate([state.pressure[sl] if model_of(scene.material(p).model).hydro else tr[sl]
                             for p, sl in zip(scene.phases, lay.slices)])
 
@@ -34,7 +34,7 @@ def force_stress(lay, params, state):
     does not have (p = state.pressure, the pressure the stress holds)."""
     if lay.scene.c_h is None:
         return state.stress
-    d = lay.dim
+    d = state.stress.shape[-1]
     p = pressure(lay, state)
     return state.stress + ((1 - closure_alpha(params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
 
@@ -49,9 +49,9 @@ def per_phase(lay, params, state, fn):
 def bulk_modulus_and_wave_speed(lay, params, state):
     """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state."""
     rho = state.mass / state.volume
-    K = per_phase(lay, params, state, lambda m, c, sl: m.bulk_modulus(c, rho[sl], state.energy[sl], lay.dim)
+    K = per_phase(lay, params, state, lambda m, c, sl: m.bulk_modulus(c, rho[sl], state.energy[sl], lay.scene.material_dim)
                   * jnp.ones_like(rho[sl]))
-    cw = per_phase(lay, params, state, lambda m, c, sl: m.wave_speed(c, rho[sl], state.energy[sl], lay.dim)
+    cw = per_phase(lay, params, state, lambda m, c, sl: m.wave_speed(c, rho[sl], state.energy[sl], lay.scene.material_dim)
                    * jnp.ones_like(rho[sl]))
     return K, cw
 
@@ -85,7 +85,7 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     values, sigma_f the stress the grid sees), plastic strain and damage. Returns the new fields as a
     dict of State field names."""
     scene = lay.scene
-    d = lay.dim
+    d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
     alpha_of = None
     if scene.c_h is not None:

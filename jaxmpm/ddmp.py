@@ -29,19 +29,36 @@ _P3 = np.array([[[1 / 4, 1 / 12], [1 / 12, 1 / 12]], [[1 / 12, 1 / 12], [1 / 12,
 _D3 = _P2[:, :, None] * np.array([-1.0, 1.0])[None, None, :]   # integral phi_a phi_b phi_c'
 
 
+def _weighted_1d():
+    """The 1D integrals of _P2, _P3, _D3 with an extra factor s (the radius weight r = r_c + h s of
+    an axisymmetric cell), by 4-point Gauss quadrature (exact for these polynomials)."""
+    g, w = np.polynomial.legendre.leggauss(4)
+    s, w = 0.5 * (g + 1), 0.5 * w
+    phi = np.stack([1 - s, s])
+    dphi = np.array([-1.0, 1.0])[:, None] * np.ones_like(s)
+    P2 = np.einsum("aq,bq,q->ab", phi, phi, w * s)
+    P3 = np.einsum("aq,bq,cq,q->abc", phi, phi, phi, w * s)
+    D3 = np.einsum("aq,bq,cq,q->abc", phi, phi, dphi, w * s)
+    return P2, P3, D3
+
+
 @functools.lru_cache(maxsize=8)
-def cell_tensors(dim: int, h: float):
+def cell_tensors(dim: int, h: float, radius_weight: bool = False):
     """T0[j, n] = integral over a cell of S_j S_n (m^d);
-    Tg[j, n, i, k] = integral of S_j S_n dS_i/dx_k (m^(d-1)); j, n, i corner indices (2^d)."""
+    Tg[j, n, i, k] = integral of S_j S_n dS_i/dx_k (m^(d-1)); j, n, i corner indices (2^d).
+    radius_weight: the same integrals with the factor s = (r - r_c) / h along axis 0 (the
+    axisymmetric weight r = r_c + h s is then r_c T + h T_s)."""
     off = stencil_offsets(dim, 2)
     s = len(off)
     T0 = np.ones((s, s))
     Tg = np.ones((s, s, s, dim))
+    P2w, P3w, D3w = _weighted_1d() if radius_weight else (_P2, _P3, _D3)
     for e in range(dim):
         a = off[:, e]
-        T0 *= _P2[a[:, None], a[None, :]]
-        p3 = _P3[a[:, None, None], a[None, :, None], a[None, None, :]]
-        d3 = _D3[a[:, None, None], a[None, :, None], a[None, None, :]]
+        P2, P3, D3 = (P2w, P3w, D3w) if e == 0 else (_P2, _P3, _D3)
+        T0 *= P2[a[:, None], a[None, :]]
+        p3 = P3[a[:, None, None], a[None, :, None], a[None, None, :]]
+        d3 = D3[a[:, None, None], a[None, :, None], a[None, None, :]]
         for k in range(dim):
             Tg[..., k] *= d3 if k == e else p3
     return T0 * h**dim, Tg * h ** (dim - 1)
@@ -66,12 +83,18 @@ def add_corners(c, dim):
     return total
 
 
-def node_support(grid) -> np.ndarray:
-    """(R1) support volume of each node inside the domain, (*nodes,) m^d: h per axis, h/2 at grid edges."""
+def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
+    """(R1) support volume of each node inside the domain, (*nodes,) m^d: h per axis, h/2 at grid
+    edges; axisymmetric: along r the integral of S_n r dr (h r_n inside, h r_n / 2 +- h^2 / 6 at
+    the edges), so the volume is per radian like the particles'."""
     vol = np.ones(grid.nodes)
     for k, n in enumerate(grid.nodes):
         f = np.full(n, grid.h)
         f[0] = f[-1] = grid.h / 2
+        if axisymmetric and k == 0:
+            h = grid.h
+            r = grid.origin[0] + h * np.arange(n)
+            f = np.where(np.arange(n) > 0, h * r / 2 - h**2 / 6, 0.0) + np.where(np.arange(n) < n - 1, h * r / 2 + h**2 / 6, 0.0)
         shape = [1] * grid.dim
         shape[k] = n
         vol = vol * f.reshape(shape)
@@ -102,14 +125,30 @@ def cell_weight(tc, cell_volume, h):
     return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
 
 
-def build(grid, nodal_volume, cell_volume):
+def build(grid, nodal_volume, cell_volume, axisymmetric=False):
     """Assemble V and A from the nodal particle volume (K, *nodes) = sum_p V_p S_n(x_p) and the
-    particle volume in each cell (K, *cells)."""
+    particle volume in each cell (K, *cells); axisymmetric: integrals weighted by the radius r
+    (volumes per radian)."""
     d = grid.dim
     T0, Tg = cell_tensors(d, grid.h)
     dtype = nodal_volume.dtype
-    theta = jnp.clip(nodal_volume / jnp.asarray(node_support(grid), dtype), 0.0, 1.0)    # (R1)
+    support = jnp.asarray(node_support(grid, axisymmetric), dtype)
+    theta = jnp.clip(nodal_volume / support, 0.0, 1.0)                                   # (R1)
     tc = corners(theta, d)
+    if axisymmetric:      # the cell's fill weighs r: its expected volume is that of the r-weighted theta
+        T0s, Tgs = cell_tensors(d, grid.h, True)
+        r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((-1,) + (1,) * (d - 1))
+        ones = jnp.ones(2**d, dtype)
+        expected = (r_c * jnp.einsum("...n,jn,j->...", tc, jnp.asarray(T0, dtype), ones)
+                    + grid.h * jnp.einsum("...n,jn,j->...", tc, jnp.asarray(T0s, dtype), ones))
+        w = jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
+        tc = tc * w[..., None]                                                               # (R2)
+        Vc = (r_c[..., None] * jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
+              + grid.h * jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0s, dtype)))
+        A = (r_c[..., None, None, None] * jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))
+             + grid.h * jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tgs, dtype)))
+        V = add_corners(Vc, d)                                                           # (R3)
+        return DDMPGrid(V=V, A=A, theta=theta)
     tc = tc * cell_weight(tc, cell_volume, grid.h)[..., None]                              # (R2)
     Vc = jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
     A = jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))

@@ -42,10 +42,13 @@ OPTIONAL = ("C", "eps_ps", "pressure", "damage")
 H5_SUFFIXES = (".h5", ".hdf5")
 
 
-def units(name: str, dim: int) -> str:
+def units(name: str, dim: int, axisymmetric: bool = False) -> str:
     """SI units of a dataset, or of a total ('kinetic', 'internal', 'total_energy': J). Volumes,
-    masses and energy totals are per unit depth in 2D (plane strain: m^2, kg/m, J/m) and per unit
-    cross-section area in 1D (m, kg/m^2, J/m^2), as in the State."""
+    masses and energy totals are per unit depth in 2D (plane strain: m^2, kg/m, J/m), per radian
+    in axisymmetric scenes (m^3/rad, kg/rad, J/rad) and per unit cross-section area in 1D
+    (m, kg/m^2, J/m^2), as in the State."""
+    if axisymmetric and name in ("kinetic", "internal", "total_energy", "volume", "mass"):
+        return {"volume": "m^3/rad", "mass": "kg/rad"}.get(name, "J/rad")
     if name in ("kinetic", "internal", "total_energy"):
         return {1: "J/m^2", 2: "J/m", 3: "J"}[dim]
     if name == "volume":
@@ -185,7 +188,7 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
                                      "n_particles": sl.stop - sl.start})
                     for name in FIELDS + OPTIONAL:
                         if name in data:
-                            pg.create_dataset(name, data=data[name][i, sl]).attrs["units"] = units(name, d)
+                            pg.create_dataset(name, data=data[name][i, sl]).attrs["units"] = units(name, d, scene.axisymmetric)
                     if d < 3:
                         pg.create_dataset("x3", data=_pad3(data["x"][i, sl])).attrs["units"] = "m"
                         pg.create_dataset("v3", data=_pad3(data["v"][i, sl])).attrs["units"] = "m/s"
@@ -219,12 +222,14 @@ def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
             for name in ("volume", "mass", "energy") + tuple(k for k in ("eps_ps", "pressure", "damage") if k in data):
                 lines.append(f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">'
                              f'{item((n,), f"{base}/{name}")}</Attribute>')
-            for a in range(d):
-                for b in range(a, d):
+            md = scene.material_dim
+            names = "rzt" if scene.axisymmetric else "xyz"       # axisymmetric: r, z, theta (hoop)
+            for a in range(md):
+                for b in range(a, md):
                     slab = (f'<DataItem ItemType="HyperSlab" Dimensions="{n} 1 1" Type="HyperSlab">'
                             f'<DataItem Dimensions="3 3" Format="XML">0 {a} {b} 1 1 1 {n} 1 1</DataItem>'
-                            f'{item((n, d, d), f"{base}/stress")}</DataItem>')
-                    lines.append(f'      <Attribute Name="stress_{"xyz"[a]}{"xyz"[b]}" AttributeType="Scalar" '
+                            f'{item((n, md, md), f"{base}/stress")}</DataItem>')
+                    lines.append(f'      <Attribute Name="stress_{names[a]}{names[b]}" AttributeType="Scalar" '
                                  f'Center="Node">{slab}</Attribute>')
             lines.append('    </Grid>')
         lines.append('  </Grid>')
@@ -316,8 +321,8 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
+        ax.set_xlabel("r (m)" if scene.axisymmetric else "x (m)")
+        ax.set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
         ax.legend(loc="upper right", fontsize="small", markerscale=max(1.0, 20 / size))
         ax.set_title(title + ("" if d == 2 else " (projection on x-y)"))
     with _atomic(path) as tmp:
@@ -354,9 +359,10 @@ def summary(path) -> str:
                          f"{f[groups[0]][p]['x'].shape[0]} particles")
         if "params" in f:
             lines.append("params:  stored under /params")
-    mass_u = units("mass", dim)
+    axi = bool(spec.get("axisymmetric", False))
+    mass_u = units("mass", dim, axi)
     lines += [f"{'':<22}{'first':>14}{'last':>14}",
               f"{'t (s)':<22}{times[0]:>14.6g}{times[-1]:>14.6g}",
               f"{'total mass (' + mass_u + ')':<22}{rows[0][0]:>14.6g}{rows[1][0]:>14.6g}",
-              f"{'kinetic (' + units('kinetic', dim) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
+              f"{'kinetic (' + units('kinetic', dim, axi) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
     return "\n".join(lines)

@@ -274,6 +274,10 @@ class Scene:
       artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
         q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
         av_quadratic), or None for none; only with equation-of-state (hydrocode) models.
+      axisymmetric: 2D axisymmetric (r, z) geometry (PHYSICS 2.3): axis 0 is the radius r >= 0
+        (grid.origin[0] >= 0), axis 1 the axial coordinate z. Volumes and masses are per radian
+        (V = r dr dz), the stress has a hoop component (stress and F are 3x3, the third axis theta)
+        and the grid force a hoop term; on the axis (r = 0) v_r = 0 whatever boundary.x_lo says.
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
@@ -292,6 +296,7 @@ class Scene:
     interface_forces: bool = True
     c_h: float | None = None
     artificial_viscosity: tuple[float, float] | None = None
+    axisymmetric: bool = False
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
@@ -317,6 +322,8 @@ class Scene:
                 _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(), f"{dim} coordinates per point (grid is {dim}D)")
             for d in range(dim):
                 lo, hi = self.grid.origin[d], self.grid.hi[d]
+                if d == 0 and self.axisymmetric is True and lo == 0.0:
+                    lo = -hi            # a body on the axis may be given whole (a sphere centred at r = 0)
                 if p.geometry.lo[d] < lo - 1e-12 * abs(hi - lo) or p.geometry.hi[d] > hi + 1e-12 * abs(hi - lo):
                     _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(),
                           f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)")
@@ -371,6 +378,15 @@ class Scene:
                 if not model_of(m.model).hydro:
                     _fail("effects.artificial_viscosity", list(av),
                           f"only with equation-of-state models: phase {p.name!r} uses {m.model!r}")
+        if not isinstance(self.axisymmetric, bool):
+            _fail("axisymmetric", self.axisymmetric, "true | false")
+        if self.axisymmetric:
+            if dim != 2:
+                _fail("axisymmetric", True, f"only with a 2D (r, z) grid (grid is {dim}D)")
+            if self.grid.origin[0] < 0:
+                _fail("grid.origin[0]", self.grid.origin[0], ">= 0 m (the radius of an axisymmetric grid)")
+            if self.shape == "bspline2" or self.transfer == "apic":
+                _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
         if not isinstance(self.interface_forces, bool):
             _fail("effects.interface_forces", self.interface_forces, "true | false")
         if self.c_h is not None and self.transfer == "apic":
@@ -397,6 +413,11 @@ class Scene:
     @property
     def dim(self) -> int:
         return self.grid.dim
+
+    @property
+    def material_dim(self) -> int:
+        """Dimension of F and the stress: 3 for axisymmetric scenes (r, z, theta), else dim."""
+        return 3 if self.axisymmetric else self.dim
 
     @property
     def n_fields(self) -> int:

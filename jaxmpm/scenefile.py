@@ -40,7 +40,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "grid", "boundary", "effects",
+TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
 EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h", "artificial_viscosity")
@@ -127,7 +127,8 @@ def scene_from_dict(d: Mapping) -> Scene:
     kw = {}
     for k, types, allowed in (("name", (str,), "a string"), ("description", (str,), "a string"),
                               ("shape", (str,), "ddmp | linear | bspline2"), ("transfer", (str,), "musl | seed | seed_halfstep | apic"),
-                              ("cfl", (int, float), "a number in (0, 1]"), ("t_end", (int, float), "a number > 0 s")):
+                              ("cfl", (int, float), "a number in (0, 1]"), ("t_end", (int, float), "a number > 0 s"),
+                              ("axisymmetric", (bool,), "true | false")):
         if k in d:
             kw[k] = _typed(d[k], types, k, allowed)
     if "artificial_viscosity" in e:
@@ -151,6 +152,8 @@ def scene_to_dict(scene: Scene) -> dict:
     """The dict form of a scene file (inverse of scene_from_dict)."""
     d = {"name": scene.name, "description": scene.description, "shape": scene.shape, "transfer": scene.transfer,
          "cfl": scene.cfl, "t_end": scene.t_end, "grid": scene.grid.to_dict()}
+    if scene.axisymmetric:
+        d["axisymmetric"] = True
     b = dict(scene.boundary.faces)
     if scene.boundary.layers != 1:
         b["layers"] = scene.boundary.layers
@@ -199,7 +202,8 @@ def _toml_value(v) -> str:
 def scene_to_toml(scene: Scene) -> str:
     """TOML text of the scene; `load_scene` of this text gives back an equal Scene."""
     d = scene_to_dict(scene)
-    lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end")]
+    lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric")
+             if k in d]
     for table in ("grid", "boundary", "effects", "output"):
         lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in d[table].items()]
     for key, spec in d["materials"].items():

@@ -8,8 +8,8 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
     v       (N, d)    velocity, m/s
     mass    (N,)      kg (constant)
     volume  (N,)      current material volume, m^3
-    F       (N, d, d) deformation gradient
-    stress  (N, d, d) Cauchy stress, Pa (tension positive)
+    F       (N, D, D) deformation gradient (D = d, or 3 in axisymmetric scenes: r, z, theta)
+    stress  (N, D, D) Cauchy stress, Pa (tension positive)
     energy  (N,)      specific internal energy, J/kg
     C       (N, d, d) APIC affine velocity matrix, 1/s (only with transfer = 'apic'; else None)
     eps_ps  (N,)      accumulated equivalent plastic strain (drives the alpha closure, E5)
@@ -112,6 +112,8 @@ def init_state(scene, params) -> State:
         x = sample_phase(scene.grid, p)
         n = len(x)
         vol = np.full(n, p.fraction * (h / p.ppc) ** d)
+        if scene.axisymmetric:
+            vol = vol * x[:, 0]              # per radian: V = r dr dz
         xs.append(jnp.asarray(x, dtype))
         vs.append(jnp.broadcast_to(jnp.asarray(p.velocity, dtype), (n, d)))
         vols.append(jnp.asarray(vol, dtype))
@@ -121,7 +123,8 @@ def init_state(scene, params) -> State:
         es.append(jnp.zeros(n, dtype) + e0)
     x, v, vol, m, pres, energy = (jnp.concatenate(a) for a in (xs, vs, vols, ms, ps, es))
     n = x.shape[0]
-    eye = jnp.broadcast_to(jnp.eye(d, dtype=dtype), (n, d, d))
+    md = scene.material_dim
+    eye = jnp.broadcast_to(jnp.eye(md, dtype=dtype), (n, md, md))
     C = jnp.zeros((n, d, d), dtype) if scene.transfer == "apic" else None
     return State(t=jnp.zeros((), dtype), x=x, v=v, mass=m, volume=vol, F=eye,
                  stress=-pres[:, None, None] * eye, energy=energy, C=C, eps_ps=jnp.zeros(n, dtype),
@@ -140,12 +143,12 @@ def check_state(scene, state: State) -> None:
     if not isinstance(state, State):
         raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State")
     slices = phase_slices(scene)
-    n, d = slices[-1].stop, scene.dim
+    n, d, md = slices[-1].stop, scene.dim, scene.material_dim
 
     def phase_of(i):
         return next(p.name for p, sl in zip(scene.phases, slices) if sl.start <= i < sl.stop)
 
-    shapes = {"x": (n, d), "v": (n, d), "mass": (n,), "volume": (n,), "F": (n, d, d), "stress": (n, d, d),
+    shapes = {"x": (n, d), "v": (n, d), "mass": (n,), "volume": (n,), "F": (n, md, md), "stress": (n, md, md),
               "energy": (n,), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
     if np.shape(state.t) != ():
         raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")

@@ -46,7 +46,8 @@ class Layout:
 def boundary_mask(scene) -> np.ndarray | None:
     """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1."""
     g, b = scene.grid, scene.boundary
-    if all(b.kind(k, s) == "free" for k in range(g.dim) for s in ("lo", "hi")):
+    on_axis = scene.axisymmetric and g.origin[0] == 0.0
+    if all(b.kind(k, s) == "free" for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
         return None
     idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
     mask = np.ones((g.n_nodes, g.dim))
@@ -60,6 +61,8 @@ def boundary_mask(scene) -> np.ndarray | None:
                 mask[near, :] = 0.0
             else:
                 mask[near, k] = 0.0
+    if on_axis:                      # axis condition v_r = 0 at r = 0 (PHYSICS 2.3)
+        mask[idx[:, 0] == 0, 0] = 0.0
     return mask
 
 
@@ -125,16 +128,28 @@ def _scatter_named(lay, st, parts):
     return out
 
 
-def _stress_parts(st, volume, beta, sig):
+def _stress_parts(st, volume, beta, sig, radius=None):
     """Force contributions of particle stresses sig (N, d, d): the particle part
-    -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S."""
+    -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S.
+    Axisymmetric (radius (N,) given, sig (N, 3, 3) with theta last): the (r, z) block as above plus
+    the hoop force -V sig_thth S / r along r (PHYSICS 2.3), adjoint to L_thth = v_r / r."""
+    if radius is not None:
+        hoop = -(volume * sig[:, 2, 2] / radius)[:, None] * st.w
+        sig = sig[:, :2, :2]
     d = sig.shape[-1]
     Vb = volume if beta is None else volume * beta
     parts = {"f": -jnp.einsum("nab,nsb->nsa", Vb[:, None, None] * sig, st.dw)}
+    if radius is not None:
+        parts["f"] = parts["f"].at[..., 0].add(hoop)
     if beta is not None:
         shv = ((volume * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
         parts["shv"] = st.w[..., None] * shv[:, None, :]
     return parts
+
+
+def _radius(lay, state):
+    """(N,) particle radius r (m) in axisymmetric scenes, else None."""
+    return state.x[:, 0] if lay.scene.axisymmetric else None
 
 
 def _nodal_stress_force(lay, dg, g):
@@ -158,7 +173,7 @@ def particle_to_grid(lay, params, st, state, beta):
     m, v, V = state.mass, state.v, state.volume
     w = st.w[..., None]
     parts = {"m": w * m[:, None, None], "mv": w * (m[:, None] * v)[:, None, :]}
-    parts.update(_stress_parts(st, V, beta, force_stress(lay, params, state)))
+    parts.update(_stress_parts(st, V, beta, force_stress(lay, params, state), _radius(lay, state)))
     if beta is not None or lay.n_fields > 1:
         parts["vol"] = w * V[:, None, None]
     if lay.scene.has_interface_forces:
@@ -174,11 +189,11 @@ def ddmp_operators(lay, st, nodal_volume, dtype, volume):
     scene = lay.scene
     cells = cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype))
     return ddmp.build(scene.grid, nodal_volume.reshape(_grid_shape(lay)),
-                      cells.reshape((lay.n_fields,) + scene.grid.cells))
+                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric)
 
 
 def _node_volume(lay, dtype):
-    return jnp.asarray(ddmp.node_support(lay.scene.grid).reshape(-1), dtype)
+    return jnp.asarray(ddmp.node_support(lay.scene.grid, lay.scene.axisymmetric).reshape(-1), dtype)
 
 
 def interface_force(lay, st, beta, state, g, dg, m_min):
@@ -195,8 +210,8 @@ def interface_force(lay, st, beta, state, g, dg, m_min):
     P = fields.lsq_nodal_pressure(g["lsq"], d, h)
     p_n = fields.common_pressure(theta, kappa, P)                                      # (E6)
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
-    iso = p_p[:, None, None] * jnp.eye(d, dtype=dtype)
-    I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso)))
+    iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
+    I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso, _radius(lay, state))))
     grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
     I = I - grad_p.reshape(I.shape)
     p_amb = fields.ambient_pressure(theta, kappa, P) if lay.scene.c_h is not None else None
@@ -242,7 +257,16 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     return v, a, dg, p_amb
 
 
-def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=None):
+def _with_hoop(lay, st, L, v, radius):
+    """Axisymmetric: L (N, 2, 2) of (r, z) -> (N, 3, 3) with L_thth = v_r(x_p) / r_p."""
+    if radius is None:
+        return L
+    v_r = interpolate(st, lay.field, v[..., :1])[:, 0]
+    L3 = jnp.zeros(L.shape[:-2] + (3, 3), L.dtype).at[:, :2, :2].set(L)
+    return L3.at[:, 2, 2].set(v_r / radius)
+
+
+def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=None, radius=None):
     """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
     (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators dg or the particle
     volumes (N,) to build them) the blend (E12):
@@ -250,12 +274,12 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=No
     d = lay.dim
     L = jnp.einsum("nsa,nsb->nab", gather(st, lay.field, v), st.dw)
     if nodal_volume is None:
-        return L
+        return _with_hoop(lay, st, L, v, radius)
     beta = ddmp_beta(st.xi)
     dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
     Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(_grid_shape(lay) + (d,)))
     Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
-    return beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar                  # (E12)
+    return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)   # (E12)
 
 
 def velocity_gradient(lay, params, st, state, dt, m_min):
@@ -266,7 +290,7 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     if ddmp_on or lay.scene.has_exchange:
         vol_n = scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)[..., 0]
     v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
-    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume)
+    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=_radius(lay, state))
 
 
 def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
@@ -312,7 +336,7 @@ def seed_update(lay, params, state, dt):
         vol_n = g["vol"][..., 0] if "vol" in g else None
         v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
         x = state.x + dt * interpolate(st, lay.field, v_r)
-        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg)
+        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=_radius(lay, state))
         moved = replace(state, x=x, v=v)
     else:
         half = 0.5 if scene.transfer == "seed_halfstep" else 1.0

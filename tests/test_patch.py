@@ -53,3 +53,29 @@ def test_linear_field_gives_exact_gradient(dim, shape, wall):
     h = scene.grid.h
     assert (x[:, 0] < h).any() if wall else (x[:, 0] < 0.2).any()
     assert (x[:, 0] > 0.8).any()
+
+
+@pytest.mark.parametrize("shape", ["ddmp", "linear"])
+@pytest.mark.parametrize("on_axis", [True, False], ids=["from_the_axis", "annulus"])
+def test_axisymmetric_linear_field_gives_exact_gradient_and_hoop_rate(shape, on_axis):
+    """v_r = a r, v_z = c r + b z + e (the linear fields the axis admits): L_rr = a, L_zr = c,
+    L_zz = b and the hoop rate L_thth = v_r / r = a at every particle, also at the axis and at the
+    free surfaces; the volumes per radian are r dr dz."""
+    mat = jaxmpm.Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.25)
+    lo = (0.0, 0.13) if on_axis else (0.23, 0.13)
+    scene = Scene(grid=Grid(cells=(10, 10), h=0.1), phases=(Phase("block", "m", Box(lo, (0.77, 0.81)), ppc=2),),
+                  materials=(mat,), shape=shape, axisymmetric=True)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    np.testing.assert_allclose(np.asarray(state.volume), np.asarray(state.x[:, 0]) * 0.05**2, rtol=1e-12)
+    assert state.stress.shape[1:] == (3, 3) and state.F.shape[1:] == (3, 3)
+    a, b, c, e = 0.7, -1.3, 0.4, 2.0
+    xn = _nodal_positions(scene.grid)
+    lay = Layout.of(scene)
+    v = jnp.asarray(np.stack([a * xn[:, 0], c * xn[:, 0] + b * xn[:, 1] + e], -1))[None]
+    v = _apply_bc(lay, v)
+    st = stencil(scene, state.x)
+    vol = scatter_weighted(st, None, state.volume[:, None], 1, lay.n_nodes)[..., 0] if shape == "ddmp" else None
+    L = particle_velocity_gradient(lay, st, v, vol, volume=state.volume, radius=state.x[:, 0])
+    expected = np.array([[a, 0.0, 0.0], [c, b, 0.0], [0.0, 0.0, a]])
+    np.testing.assert_allclose(np.asarray(L), np.broadcast_to(expected, L.shape), rtol=0, atol=1e-12)
