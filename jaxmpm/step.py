@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm import ddmp, fields
-from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress, pressure
+from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, constitutive, force_stress, pressure
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
 from jaxmpm.transfer import cell_sum, gather, interpolate, scatter
@@ -162,8 +162,13 @@ def _nodal_stress_force(lay, dg, g):
 
 
 def phase_pressure_and_compressibility(lay, params, state):
-    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa)."""
-    return pressure(lay, state), 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
+    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa). With the closure (E8)
+    the pressure the grid sees, alpha p: a fragmented material's pressure acts on no node through
+    its own stress, so it must not act through the common pressure either (E6, E13)."""
+    p = pressure(lay, state)
+    if lay.scene.c_h is not None:
+        p = closure_alpha(params, state) * p
+    return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 
 def particle_to_grid(lay, params, st, state, beta):
