@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from jaxmpm.scenes import basic
+from jaxmpm.scenes import basic, impact
 
 
 @dataclass(frozen=True)
@@ -21,6 +21,7 @@ BUILTINS = {
                              basic.vibrating_bar_state),
     "self_weight_column": Builtin(basic.self_weight_column, "1D soft column settling under its own weight (exact static stress; cell crossing)"),
     "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
+    "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; first version)"),
 }
 
 DEFAULT_SCENE = "elastic_impact"
