@@ -422,3 +422,10 @@ def test_plane_strain_impact_with_the_full_library_model_and_the_closure():
     eps = np.asarray(final.eps_ps)
     assert eps.max() > 0.5 and alpha.min() < 0.01
     assert (alpha == 1.0).any()                           # material that never yielded stays intact
+
+
+@pytest.mark.slow
+def test_sod_keeps_converging_at_1600_cells():
+    """Slow: 800 and 1600 cells (0.27% and 0.16% measured)."""
+    e800, e1600 = sod_error(800), sod_error(1600)
+    assert e1600 < 0.002 and np.log2(e800 / e1600) > 0.6
