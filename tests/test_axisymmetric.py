@@ -160,3 +160,53 @@ def test_debris_cloud_first_version_runs_and_conserves():
     e0 = float(jaxmpm.diagnostics.kinetic_energy(s0))
     e1 = float(jaxmpm.diagnostics.kinetic_energy(final) + jaxmpm.diagnostics.internal_energy(final))
     assert abs(e1 / e0 - 1) < 0.01
+
+
+@pytest.fixture(scope="module")
+def coarse_cloud():
+    scene = jaxmpm.load_scene("debris_cloud", resolution=0.5)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    _, hist = jaxmpm.simulate(scene, params, s0, t_end=3e-6, n_out=6, progress=False)
+    return scene, params, s0, hist
+
+
+def test_soft_feature_velocities_agree_with_the_hard_definitions(coarse_cloud):
+    from jaxmpm import features
+
+    scene, _, _, hist = coarse_cloud
+    soft = np.asarray(features.feature_velocities(scene, hist, first=2))
+    at = lambda k: jax.tree.map(lambda a: a[k], hist)
+    hard = np.asarray(features.slope(hist.t[2:], jnp.stack([features.hard_feature_positions(scene, at(k))
+                                                             for k in range(2, len(hist.t))])))
+    assert np.all(hard < -1000.0)                                   # all three move downstream
+    np.testing.assert_allclose(soft, hard, rtol=0.02)
+    # the soft positions lie inside the hard extremes by less than a cell
+    for k in range(len(hist.t)):
+        s, hd = np.asarray(features.feature_positions(scene, at(k))), np.asarray(features.hard_feature_positions(scene, at(k)))
+        assert np.all(np.abs(s - hd) < scene.grid.h)
+
+
+def test_feature_positions_have_finite_gradients_everywhere(coarse_cloud):
+    from jaxmpm import features
+
+    scene, _, _, hist = coarse_cloud
+    state = jax.tree.map(lambda a: a[-1], hist)
+    g = jax.jacrev(lambda x: features.feature_positions(scene, dataclasses.replace(state, x=x)))(state.x)
+    assert np.isfinite(np.asarray(g)).all()
+    assert np.all(np.abs(np.asarray(g)).sum(axis=(1, 2)) > 0.99)   # each feature is a weighted mean of z's
+
+
+@pytest.mark.slow
+def test_gradient_of_a_feature_velocity_with_respect_to_c_h_is_finite(coarse_cloud):
+    from jaxmpm import features
+
+    scene, params, s0, _ = coarse_cloud
+    n = jaxmpm.plan_steps(scene, params, s0, 3e-6)
+
+    def front_speed(c_h):
+        _, h = jaxmpm.simulate(scene, dataclasses.replace(params, c_h=c_h), s0, t_end=3e-6, n_out=6, n_steps=n, checkpoint=True)
+        return features.feature_velocities(scene, h, first=2)[0]
+
+    g = jax.grad(front_speed)(jnp.asarray(0.15))
+    assert np.isfinite(float(g))

@@ -1,0 +1,78 @@
+"""Differentiable feature measurements of a debris cloud (axisymmetric scenes, flight along -z).
+
+Hard definitions (min / max over particles) have no useful gradient. Each feature here is a
+mass-weighted log-sum-exp with a stated width w (m):
+
+    soft_max(z; m, w) = w log( sum_p m_p exp(z_p / w) / sum_p m_p )
+
+which tends to max_p z_p as w -> 0 and lies below it by at most w log(M / m_max) (M the total
+weight, m_max the weight of the extreme particle); soft_min(z) = -soft_max(-z). Features (the
+numbering of Piekutowski's debris-cloud sketches, as in the calibration data):
+
+  point 1  leading edge of the cloud: the front of all debris mass (soft min of z, all particles)
+  point 2  front of the projectile material on the axis (soft min of z over the projectile,
+           weighted by exp(-(r / r_axis)^2))
+  point 4  rear of the projectile material on the axis (soft max of z, same weights)
+
+`feature_velocities` fits the slope of each position over the given output times (least squares),
+the features' axial velocities in m/s (negative: downstream). Defaults w = 0.1 h, r_axis = h: on
+the coarse debris cloud the soft velocities agree with the hard ones within 0.7% (tests).
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+from jaxmpm.state import phase_slices
+
+
+def soft_max(z, weight, width):
+    """Weighted log-sum-exp max of z (N,) with weights (N,) >= 0 and width (m)."""
+    return width * (logsumexp(z / width, b=weight) - jnp.log(jnp.sum(weight)))
+
+
+def soft_min(z, weight, width):
+    return -soft_max(-z, weight, width)
+
+
+def _projectile(scene, state, name):
+    sl = phase_slices(scene)[[p.name for p in scene.phases].index(name)]
+    return state.x[..., sl, 0], state.x[..., sl, 1], state.mass[..., sl]
+
+
+def feature_positions(scene, state, width=None, r_axis=None, projectile="projectile"):
+    """(3,) axial positions (m) of points 1, 2, 4 in one State (soft definitions)."""
+    h = scene.grid.h
+    width = 0.1 * h if width is None else width
+    r_axis = h if r_axis is None else r_axis
+    r, z, m = _projectile(scene, state, projectile)
+    w_axis = m * jnp.exp(-(r / r_axis) ** 2)
+    return jnp.stack([soft_min(state.x[:, 1], state.mass, width), soft_min(z, w_axis, width), soft_max(z, w_axis, width)])
+
+
+def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
+    """(3,) the hard definitions: min z of all particles; min and max z of the projectile's
+    particles within r_axis (default h) of the axis."""
+    r_axis = scene.grid.h if r_axis is None else r_axis
+    r, z, _ = _projectile(scene, state, projectile)
+    near = r < r_axis
+    return jnp.stack([jnp.min(state.x[:, 1]), jnp.min(jnp.where(near, z, jnp.inf)), jnp.max(jnp.where(near, z, -jnp.inf))])
+
+
+def slope(t, y):
+    """Least-squares slope of y (T, ...) against t (T,)."""
+    tc = t - jnp.mean(t)
+    return jnp.tensordot(tc, y - jnp.mean(y, axis=0), axes=(0, 0)) / jnp.sum(tc**2)
+
+
+def feature_velocities(scene, history, first=0, **kw):
+    """(3,) axial velocities (m/s) of points 1, 2, 4: slopes of their soft positions over the
+    outputs history[first:] (a State with a leading time axis)."""
+    pos = jnp.stack([feature_positions(scene, _at(history, k), **kw) for k in range(first, history.t.shape[0])])
+    return slope(history.t[first:], pos)
+
+
+def _at(history, k):
+    import jax
+
+    return jax.tree.map(lambda a: a[k], history)
