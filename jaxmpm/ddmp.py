@@ -111,18 +111,38 @@ class DDMPGrid:
 FILL_RAMP = 0.25
 
 
-def cell_weight(tc, cell_volume, h):
+def cell_weight(expected, cell_volume):
     """(R2) weight of each cell in the DDMP integrals: 1 where the field's particles hold at least
-    FILL_RAMP of the volume the nodal fill theta puts in the cell, falling linearly to 0 with no
-    particle. A cell that holds only a trace of material (a dust of 1e-12 of its neighbours' mass)
-    then takes almost no stress from its neighbours' nodes, which would otherwise accelerate its
-    nodes without bound (the binary rule counted any particle as a full cell: a block beside such
-    dust reached 1e11 m/s in one step); the force on a trace node is at most 1 / FILL_RAMP times the
-    one its own material gives it. Cells holding a fair share of material count fully, as before,
-    and any nonnegative weights keep E11/E12 adjoint and exact for linear fields."""
-    d = tc.shape[-1].bit_length() - 1
-    expected = jnp.sum(tc, axis=-1) * (h**d / 2**d)            # integral of theta over the cell
+    FILL_RAMP of the volume `expected` that the nodal fill theta puts in the cell, falling linearly
+    to 0 with no particle. A cell that holds only a trace of material (a dust of 1e-12 of its
+    neighbours' mass) then takes almost no stress from its neighbours' nodes, which would otherwise
+    accelerate its nodes without bound (the binary rule counted any particle as a full cell: a block
+    beside such dust reached 1e11 m/s in one step); the force on a trace node is at most
+    1 / FILL_RAMP times the one its own material gives it. Cells holding a fair share of material
+    count fully, as before, and any nonnegative weights keep E11/E12 adjoint and exact for linear
+    fields. expected, cell_volume: (K, *cells) m^d (per radian if axisymmetric)."""
     return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
+
+
+def _cell_integrator(grid, dtype, axisymmetric):
+    """integrate(tc, T, T_s): the cell integrals of theta-weighted products, sum_n tc_n T[j, n, ...]
+    (K, *cells, 2^d, ...), with the axisymmetric weight r = r_c + h s along axis 0 (r_c T + h T_s)."""
+    d = grid.dim
+
+    def plain(tc, T):
+        T = jnp.asarray(T, dtype)
+        out = jnp.einsum("...n,jnx->...jx", tc, T.reshape(T.shape[0], T.shape[1], -1))
+        return out.reshape(out.shape[:-1] + T.shape[2:])
+
+    if not axisymmetric:
+        return lambda tc, T, Ts: plain(tc, T)
+    r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((-1,) + (1,) * (d - 1))
+
+    def integrate(tc, T, Ts):
+        a = plain(tc, T)
+        return r_c.reshape(r_c.shape + (1,) * (a.ndim - r_c.ndim - 1)) * a + grid.h * plain(tc, Ts)
+
+    return integrate
 
 
 def build(grid, nodal_volume, cell_volume, axisymmetric=False):
@@ -131,27 +151,15 @@ def build(grid, nodal_volume, cell_volume, axisymmetric=False):
     (volumes per radian)."""
     d = grid.dim
     T0, Tg = cell_tensors(d, grid.h)
+    T0s, Tgs = cell_tensors(d, grid.h, True) if axisymmetric else (None, None)
     dtype = nodal_volume.dtype
-    support = jnp.asarray(node_support(grid, axisymmetric), dtype)
-    theta = jnp.clip(nodal_volume / support, 0.0, 1.0)                                   # (R1)
+    integrate = _cell_integrator(grid, dtype, axisymmetric)
+    theta = jnp.clip(nodal_volume / jnp.asarray(node_support(grid, axisymmetric), dtype), 0.0, 1.0)   # (R1)
     tc = corners(theta, d)
-    if axisymmetric:      # the cell's fill weighs r: its expected volume is that of the r-weighted theta
-        T0s, Tgs = cell_tensors(d, grid.h, True)
-        r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((-1,) + (1,) * (d - 1))
-        ones = jnp.ones(2**d, dtype)
-        expected = (r_c * jnp.einsum("...n,jn,j->...", tc, jnp.asarray(T0, dtype), ones)
-                    + grid.h * jnp.einsum("...n,jn,j->...", tc, jnp.asarray(T0s, dtype), ones))
-        w = jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
-        tc = tc * w[..., None]                                                               # (R2)
-        Vc = (r_c[..., None] * jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
-              + grid.h * jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0s, dtype)))
-        A = (r_c[..., None, None, None] * jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))
-             + grid.h * jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tgs, dtype)))
-        V = add_corners(Vc, d)                                                           # (R3)
-        return DDMPGrid(V=V, A=A, theta=theta)
-    tc = tc * cell_weight(tc, cell_volume, grid.h)[..., None]                              # (R2)
-    Vc = jnp.einsum("...n,jn->...j", tc, jnp.asarray(T0, dtype))
-    A = jnp.einsum("...n,jnik->...jik", tc, jnp.asarray(Tg, dtype))
+    expected = jnp.sum(integrate(tc, T0, T0s), axis=-1)             # integral of theta over the cell
+    tc = tc * cell_weight(expected, cell_volume)[..., None]                                 # (R2)
+    Vc = integrate(tc, T0, T0s)
+    A = integrate(tc, Tg, Tgs)
     V = add_corners(Vc, d)                                                               # (R3)
     return DDMPGrid(V=V, A=A, theta=theta)
 

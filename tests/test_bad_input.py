@@ -15,6 +15,7 @@ import pytest
 import jaxmpm
 from jaxmpm import Boundary, Box, Grid, Material, Phase, Scene, Sphere
 from jaxmpm.scenefile import scene_from_toml
+from test_validation import SCENE_TOML
 
 M = Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
 GAS = Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1e5)
@@ -54,20 +55,7 @@ def simulate_with(**kw):
     jaxmpm.simulate(s, p, jaxmpm.init_state(s, p), progress=False, **kw)
 
 
-FILE = """
-[grid]
-cells = [10, 10]
-h = 0.1
-[materials.m]
-model = "hypoelastic"
-rho0 = 1000.0
-E = 1e6
-nu = 0.3
-[[phase]]
-name = "block"
-material = "m"
-geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }
-"""
+FILE = SCENE_TOML          # a valid scene file (tests/test_validation.py)
 
 CASES = [
     # --- grid and geometry
@@ -164,11 +152,11 @@ CASES = [
     ("unknown key in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 0.1\nspacing = 2")), r"grid\.spacing is an unknown key"),
     ("malformed TOML", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = = 0.1")), r"malformed TOML: .*line"),
     ("wrong type in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 'small'")), r"grid\.h = 'small' is invalid"),
-    ("material without a model", lambda: scene_from_toml(FILE.replace('model = "hypoelastic"\n', "")), r"materials\.m\.model is missing: allowed"),
+    ("material without a model", lambda: scene_from_toml(FILE.replace('model = "linear_elastic"\n', "")), r"materials\.m\.model is missing: allowed"),
     ("phase without geometry", lambda: scene_from_toml(FILE.replace('geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }', "")),
      r"phase\[0\]\.geometry is missing"),
     ("scene file without phases", lambda: scene_from_toml(FILE.split("[[phase]]")[0]), r"phase is missing: a scene needs at least one \[\[phase\]\]"),
-    ("library material with an unknown key", lambda: scene_from_toml(FILE.replace('model = "hypoelastic"\nrho0 = 1000.0\nE = 1e6\nnu = 0.3', 'library = "adamantium"')),
+    ("library material with an unknown key", lambda: scene_from_toml(FILE.replace('model = "linear_elastic"\nrho0 = 1000.0\nE = 1e6\nnu = 0.3', 'library = "adamantium"')),
      r"material key 'adamantium' is unknown: known keys are"),
 ]
 
