@@ -56,16 +56,27 @@ def bulk_modulus_and_wave_speed(lay, params, state):
     return K, cw
 
 
+EQUILIBRATING_STRAIN_MAX = 1.0     # |(p - p_amb) / K| bound of the closure (E8), log volume strain
+
+
 def material_volume_rate(lay, params, state, L, dt, p_amb):
     """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
     B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
-    relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s."""
+    relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s.
+
+    (p_i - p_amb) / K_i is the linearised volumetric strain that brings p_i to p_amb. It is clipped
+    to [-1, 1] (one e-fold of volume; our bound, not the seed's): far from the EOS's reference
+    state (a failed, hot particle expanded to rho / rho0 ~ 1e-4, where K -> 0 while p stays
+    finite) the linearisation asks for log-strains of hundreds in one step and the volume
+    overflows. The bound never acts at the strains of the validation scenes (|p - p_amb| / K < 0.3
+    in shocked aluminium at 6.7 km/s)."""
     alpha = closure_alpha(params, state)
     K, c = bulk_modulus_and_wave_speed(lay, params, state)
     tau = lay.scene.grid.h / c
     x = dt / tau
     relax = jnp.where(x > 1e-8, -jnp.expm1(-x) / jnp.where(x > 1e-8, x, 1.0), 1.0) / tau
-    B = (1 - alpha) * (pressure(lay, state) - p_amb) / K * relax
+    strain = jnp.clip((pressure(lay, state) - p_amb) / K, -EQUILIBRATING_STRAIN_MAX, EQUILIBRATING_STRAIN_MAX)
+    B = (1 - alpha) * strain * relax
     return alpha * jnp.trace(L, axis1=1, axis2=2) + B
 
 

@@ -108,7 +108,8 @@ def drag_matrix(theta, rho, v, cd, length, k_lin):
     Kmat = 0.0
     if cd is not None:
         dv = v[:, None] - v[None, :]                                          # (K, K, n, d)
-        speed = jnp.sqrt(jnp.sum(dv * dv, -1) + jnp.finfo(v.dtype).tiny)
+        s2 = jnp.sum(dv * dv, -1)
+        speed = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)      # |dv|, gradient 0 at dv = 0
         rho_f = jnp.minimum(rho[:, None], rho[None, :])
         Kmat = cd * tt * rho_f * speed / length
     if k_lin is not None:

@@ -429,3 +429,20 @@ def test_sod_keeps_converging_at_1600_cells():
     """Slow: 800 and 1600 cells (0.27% and 0.16% measured)."""
     e800, e1600 = sod_error(800), sod_error(1600)
     assert e1600 < 0.002 and np.log2(e800 / e1600) > 0.6
+
+
+def test_closed_form_largest_eigenvalues_match_lapack():
+    from jaxmpm.materials.hydro import largest_eigenvalue_2x2, largest_eigenvalue_3x3
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(500, 3, 3)) * 1e9
+    a = a + np.swapaxes(a, 1, 2)
+    a[0] = 0.0
+    a[1] = np.diag([2e9, 2e9, 2e9])          # triple root
+    a[2] = np.diag([1e9, 5e9, 5e9])          # double root on top
+    a[3] = np.diag([5e9, 1e9, 1e9])          # double root below
+    np.testing.assert_allclose(np.asarray(largest_eigenvalue_3x3(jnp.asarray(a))), np.linalg.eigvalsh(a)[:, -1],
+                               rtol=1e-9, atol=1e-6 * 1e9)
+    b = a[:, :2, :2]
+    np.testing.assert_allclose(np.asarray(largest_eigenvalue_2x2(jnp.asarray(b))), np.linalg.eigvalsh(b)[:, -1],
+                               rtol=1e-12, atol=1e-3)

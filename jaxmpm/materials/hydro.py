@@ -162,10 +162,29 @@ def max_principal_stress(s, P):
     d = s.shape[-1]
     if d == 1:
         return jnp.maximum(s[:, 0, 0], -0.5 * s[:, 0, 0]) - P
-    top = jnp.linalg.eigvalsh(s)[:, -1]
+    top = largest_eigenvalue_2x2(s) if d == 2 else largest_eigenvalue_3x3(s)
     if d == 2:
         top = jnp.maximum(top, -_tr(s))
     return top - P
+
+
+def largest_eigenvalue_2x2(s):
+    """Largest eigenvalue of symmetric (N, 2, 2) matrices, in closed form. (N,)"""
+    m = 0.5 * (s[:, 0, 0] + s[:, 1, 1])
+    h = 0.5 * (s[:, 0, 0] - s[:, 1, 1])
+    return m + jnp.sqrt(h * h + s[:, 0, 1] * s[:, 1, 0])
+
+
+def largest_eigenvalue_3x3(s):
+    """Largest eigenvalue of symmetric (N, 3, 3) matrices, in closed form (Smith, Commun. ACM 4
+    (1961) 168: q = tr/3, p = sqrt(|s - qI|^2 / 6), lambda = q + 2 p cos(acos(det((s - qI)/p)/2)/3)).
+    Closed form rather than LAPACK: no library call inside vmapped scans, and exact for p = 0. (N,)"""
+    q = _tr(s) / 3
+    B = s - q[:, None, None] * _eye(3, s.dtype)
+    p = jnp.sqrt(jnp.sum(B * B, axis=(-1, -2)) / 6)
+    safe = jnp.where(p > 0, p, 1.0)
+    r = jnp.clip(jnp.linalg.det(B / safe[:, None, None]) / 2, -1.0, 1.0)
+    return q + jnp.where(p > 0, 2 * p * jnp.cos(jnp.arccos(r) / 3), 0.0)
 
 
 def _safe_pow(x, n):

@@ -11,14 +11,18 @@ IMPACT_SPEED = 6710.0           # m/s
 
 
 def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, drag: float = 1.0,
-                 t_end: float = 6e-6, plate_radius: float = 15e-3) -> Scene:
+                 t_end: float = 6e-6, plate_radius: float = 15e-3, speed: float = IMPACT_SPEED,
+                 plate_thickness: float = PLATE_THICKNESS, sphere_diameter: float = SPHERE_DIAMETER,
+                 gap: float | None = None) -> Scene:
     """Debris cloud: an Al-2024 sphere hits a thin Al-2024 plate at 6.71 km/s (Piekutowski, Int. J.
     Impact Eng. 14 (1993) 573; the seed's "continuous to disperse flow transition" and C_h table;
     the measured feature velocities are in jaxmpm's calibration data).
 
-    Geometry (2D axisymmetric, r >= 0, z along the flight): sphere of diameter 9.53 mm centred on
-    the axis one radius plus one cell above the plate, plate 2.21 mm thick (t/D = 0.232) of radius
-    `plate_radius` with its top face at z = 0. The grid spans r in [0, plate_radius + 3 mm] and
+    Geometry (2D axisymmetric, r >= 0, z along the flight): sphere of diameter `sphere_diameter`
+    (9.53 mm) centred on the axis one radius plus `gap` (default one cell) above the plate, plate
+    `plate_thickness` (2.21 mm, t/D = 0.232) thick of radius `plate_radius` with its top face at
+    z = 0; the sphere flies at `speed` (6710 m/s) along -z. At least 4 cells across the plate
+    (resolution >= 0.73). The grid spans r in [0, plate_radius + 3 mm] and
     z from 6.7 km/s * t_end + 10 mm below the plate to one sphere diameter above it, with cells of
     0.4 mm / resolution (12 cells across the sphere's radius at resolution 1).
     Phases: projectile and plate, both `al2024` from the library (Mie-Grueneisen EOS, Johnson-Cook
@@ -27,27 +31,43 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     field). Effects: the alpha closure with C_h = `c_h` (E4, E5, E8), artificial viscosity
     (0.5, 2.0). Measures: the debris cloud's shape and the axial velocities of its features.
 
-    Status: a first version, not yet validated. Measured at resolution 1 (float32, 12 us, features
-    by `jaxmpm.features` over 6-12 us): one field, C_h = 0.15: points 1, 2, 4 at 6.63, 5.48,
-    4.99 km/s (experiment 6.3, 6.1, 3.9), energy -0.1%; two fields: 9.0, 5.46, 5.1 km/s with
-    energy -16% (plate material jets ahead), and at resolution 0.5 the two-field run can go
-    non-finite within 0.5 us. The C_h sweep and the comparison with the experiment are being built.
+    Status: not yet validated. `python -m calibration table` runs the seed's C_h sweep in one
+    vmapped call. Measured at resolution 0.75 (1004 particles, one field, float32, features over
+    3-6 us), points 1, 2, 4 in km/s: C_h = 0.02: 5.24, 5.24, 4.84; 0.15: 5.29, 5.31, 5.88;
+    0.5: 5.49, 5.49, 6.06; 1.0: 4.47, 4.77, 6.61 (experiment 6.3, 6.1, 3.9; the seed 6.29, 5.97,
+    3.92 at C_h = 0.02): point 4 rises with C_h as in the seed, points 1 and 2 are ~1 km/s slow
+    and equal (the plate's material does not lead the cloud). At resolution 1 point 4 is
+    6.0-6.7 km/s for every C_h: not converged in resolution.
     """
     if fields not in (1, 2):
         raise ValueError(f"fields = {fields!r} is invalid: allowed 1 | 2")
+    for name, value in (("resolution", resolution), ("speed", speed), ("plate_thickness", plate_thickness),
+                        ("sphere_diameter", sphere_diameter), ("plate_radius", plate_radius), ("t_end", t_end)):
+        if not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
+            raise ValueError(f"debris_cloud: {name} = {value!r} is invalid: allowed a finite number > 0"
+                             + (" (m/s, the impact speed toward the plate)" if name == "speed" else ""))
     h = 0.4e-3 / resolution
-    if not h > 0:
-        raise ValueError(f"resolution = {resolution!r} is invalid: allowed > 0")
-    R = SPHERE_DIAMETER / 2
-    z_lo = -(PLATE_THICKNESS + IMPACT_SPEED * t_end + 10e-3)
-    z_hi = 2 * R + h + SPHERE_DIAMETER
+    if plate_thickness / h < 4 - 1e-9:
+        raise ValueError(f"debris_cloud: resolution = {resolution!r} gives {plate_thickness / h:.2f} cells across the "
+                         f"plate (h = {h:g} m): allowed >= 4 cells, i.e. resolution >= "
+                         f"{4 * 0.4e-3 / plate_thickness:.3g}")
+    gap = h if gap is None else gap
+    if not gap >= 0:
+        raise ValueError(f"debris_cloud: gap = {gap!r} m puts the sphere into the plate: allowed >= 0 "
+                         "(the sphere must start above the plate's top face z = 0)")
+    if not plate_radius >= sphere_diameter / 2:
+        raise ValueError(f"debris_cloud: plate_radius = {plate_radius!r} m is below the sphere's radius "
+                         f"{sphere_diameter / 2:g} m: allowed >= the sphere's radius")
+    R = sphere_diameter / 2
+    z_lo = -(plate_thickness + speed * t_end + 10e-3)
+    z_hi = 2 * R + gap + sphere_diameter
     n_r = _cells((plate_radius + 3e-3) / 0.4e-3, resolution, 4)
     n_z = _cells((z_hi - z_lo) / 0.4e-3, resolution, 4)
     al = library_material("al2024")
     return Scene(
         name="debris_cloud", description="Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric)",
         grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, z_lo)), axisymmetric=True, materials=(al,),
-        phases=(Phase("projectile", "al2024", Sphere((0.0, R + h), R), velocity=(0.0, -IMPACT_SPEED), field=0),
-                Phase("plate", "al2024", Box((0.0, -PLATE_THICKNESS), (plate_radius, 0.0)), field=fields - 1)),
+        phases=(Phase("projectile", "al2024", Sphere((0.0, R + gap), R), velocity=(0.0, -speed), field=0),
+                Phase("plate", "al2024", Box((0.0, -plate_thickness), (plate_radius, 0.0)), field=fields - 1)),
         drag=drag if fields == 2 else None, c_h=c_h, artificial_viscosity=(0.5, 2.0),
         t_end=t_end, n_out=12, cfl=0.3)

@@ -1,0 +1,185 @@
+"""python -m calibration {table,fit} ... (see calibration/__init__.py)."""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calibration import data
+
+SEED_CH = (0.02, 0.15, 0.5, 1.0)
+
+
+def _new_folder(out) -> Path:
+    """The output folder, created; refuses one that holds a previous result."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"--out {out}: the folder exists and is not empty: a previous result is never "
+                              "overwritten (choose a new folder or remove it yourself)")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _pair(text, flag):
+    try:
+        a, b = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"{flag} {text!r} is invalid: allowed two numbers 'C_d,C_h', e.g. 2.0,0.3") from None
+    if not (a > 0 and b > 0):
+        raise ValueError(f"{flag} {text!r} is invalid: allowed C_d > 0 and C_h > 0")
+    return a, b
+
+
+def _versions():
+    import jax
+    import optax
+
+    import jaxmpm
+    return {"python": platform.python_version(), "jax": jax.__version__, "optax": optax.__version__,
+            "jaxmpm": jaxmpm.__version__, "numpy": np.__version__, "backend": jax.default_backend()}
+
+
+def _setup(args):
+    import jax
+    if not args.float32:
+        jax.config.update("jax_enable_x64", True)
+    from calibration.model import CloudModel
+    return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end)
+
+
+def cmd_table(args) -> int:
+    from calibration import plots
+    meas = data.load(args.data)
+    values = [float(x) for x in args.c_h.split(",")]
+    if not all(v > 0 for v in values):
+        raise ValueError(f"--c-h {args.c_h!r} is invalid: allowed C_h values > 0")
+    out = _new_folder(args.out)
+    model = _setup(args)
+    print(f"debris_cloud: resolution {args.resolution}, {args.fields} field(s), {model.state.x.shape[0]} particles, "
+          f"{model.n_steps} steps to {model.t_end:g} s; C_h = {values} in one vmapped call", flush=True)
+    t0 = time.perf_counter()
+    thetas = np.log(np.stack([np.full(len(values), args.drag), values], -1))
+    v = np.asarray(model.velocities_batch(thetas))
+    wall = time.perf_counter() - t0
+    rows = table_rows(meas, values, v)
+    print(format_table(rows))
+    print(f"wall time {wall:.1f} s (compilation included)")
+    csv_path = out / "ch_table.csv"
+    with open(csv_path, "w") as f:
+        f.write("# debris-cloud feature velocities (km/s, downstream positive); jaxmpm at resolution "
+                f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, t_end = {model.t_end:g} s\n")
+        f.write("source,C_h,point_1,point_2,point_4\n")
+        for r in rows:
+            f.write(f"{r['source']},{'' if r['C_h'] is None else r['C_h']},{r['v'][0]:.4f},{r['v'][1]:.4f},{r['v'][2]:.4f}\n")
+    png = plots.ch_table(rows, out / "ch_table.png")
+    print(f"wrote:\n  {csv_path}\n  {png}")
+    return 0
+
+
+def table_rows(meas, values, v):
+    rows = [dict(source="experiment", C_h=None, v=meas.experiment)]
+    rows += [dict(source="seed", C_h=c, v=meas.seed[c]) for c in sorted(meas.seed)]
+    rows += [dict(source="jaxmpm", C_h=c, v=vi) for c, vi in zip(values, v)]
+    return rows
+
+
+def format_table(rows) -> str:
+    lines = [f"{'source':<12}{'C_h':>8}{'point 1':>10}{'point 2':>10}{'point 4':>10}   (km/s)"]
+    for r in rows:
+        ch = "" if r["C_h"] is None else f"{r['C_h']:g}"
+        lines.append(f"{r['source']:<12}{ch:>8}" + "".join(f"{x:>10.3f}" for x in r["v"]))
+    return "\n".join(lines)
+
+
+def cmd_fit(args) -> int:
+    from calibration import fit as F
+    from calibration import plots
+    from calibration.model import theta_of
+    meas = data.load(args.data)
+    start = _pair(args.start, "--start")
+    if not (isinstance(args.iterations, int) and args.iterations >= 1):
+        raise ValueError(f"--iterations {args.iterations} is invalid: allowed an integer >= 1")
+    out = _new_folder(args.out)
+    model = _setup(args)
+    print(f"debris_cloud: resolution {args.resolution}, {args.fields} fields, {model.state.x.shape[0]} particles, "
+          f"{model.n_steps} steps to {model.t_end:g} s; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
+    t0 = time.perf_counter()
+    res = F.fit(model.velocities, meas.experiment, theta_of(*start), iterations=args.iterations,
+                learning_rate=args.learning_rate, progress=not args.no_progress)
+    se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
+    c_d, c_h = res.values
+    print(f"stopped: {res.stopped}")
+    print(f"C_d = {c_d:.4g} +- {se[0]:.2g}, C_h = {c_h:.4g} +- {se[1]:.2g} (Gauss-Newton, cond(J^T J) = {cond:.3g})")
+    fitted = meas.experiment + res.residuals
+    print(f"{'point':<8}{'experiment':>12}{'fit':>10}{'residual':>10}{'seed C_h=0.02':>15}")
+    for i, p in enumerate(meas.points):
+        seed = meas.seed.get(0.02, np.full(3, np.nan))[i]
+        print(f"{p:<8}{meas.experiment[i]:>12.3f}{fitted[i]:>10.3f}{res.residuals[i]:>10.3f}{seed:>15.3f}")
+    land = None
+    if args.landscape >= 2:
+        cds = np.geomspace(args.landscape_cd[0], args.landscape_cd[1], args.landscape)
+        chs = np.geomspace(args.landscape_ch[0], args.landscape_ch[1], args.landscape)
+        loss, _ = F.landscape(model.velocities_batch, meas.experiment, cds, chs)
+        land = dict(C_d=cds.tolist(), C_h=chs.tolist(), loss=loss.tolist())
+    wall = time.perf_counter() - t0
+    result = dict(
+        fitted=dict(C_d=float(c_d), C_h=float(c_h), se_C_d=float(se[0]), se_C_h=float(se[1]),
+                    se_log_C_d=float(se_theta[0]), se_log_C_h=float(se_theta[1]), jacobian_km_s=J.tolist(),
+                    condition_JtJ=cond),
+        loss=res.loss, stopped=res.stopped, points=list(meas.points), experiment_km_s=meas.experiment.tolist(),
+        fitted_km_s=fitted.tolist(), residuals_km_s=res.residuals.tolist(), max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
+        history=res.history, landscape=land,
+        settings=dict(resolution=args.resolution, fields=args.fields, t_end=model.t_end, n_steps=model.n_steps,
+                      particles=int(model.state.x.shape[0]), start=list(start), iterations=args.iterations,
+                      learning_rate=args.learning_rate, float32=args.float32, data=meas.source, wall_seconds=wall,
+                      argv=sys.argv),
+        versions=_versions())
+    (out / "result.json").write_text(json.dumps(result, indent=1))
+    pngs = plots.fit_report(result, out)
+    print(f"wall time {wall:.1f} s\nwrote:\n  {out / 'result.json'}" + "".join(f"\n  {p}" for p in pngs))
+    return 0
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog="python -m calibration", description=__doc__)
+    sub = ap.add_subparsers(dest="command", required=True)
+    for name, fn, default_out in (("table", cmd_table, "calibration_table"), ("fit", cmd_fit, "calibration_fit")):
+        p = sub.add_parser(name)
+        p.set_defaults(fn=fn)
+        p.add_argument("--resolution", type=float, default=0.75, help="debris_cloud resolution (>= 0.73; default 0.75)")
+        p.add_argument("--fields", type=int, default=2 if name == "fit" else 1, help="velocity fields (1 or 2)")
+        p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
+        p.add_argument("--data", default=None, help="the experiment's CSV (default: the packaged copy)")
+        p.add_argument("--out", default=default_out, help="output folder (must not hold a previous result)")
+        p.add_argument("--float32", action="store_true", help="float32 (default float64: float32 adjoints of "
+                       "the two-field cloud overflow past ~2 us)")
+    t = sub.choices["table"]
+    t.add_argument("--c-h", default=",".join(map(str, SEED_CH)), help="C_h values (default: the seed's)")
+    t.add_argument("--drag", type=float, default=1.0, help="C_d (used with --fields 2)")
+    f = sub.choices["fit"]
+    f.add_argument("--iterations", type=int, default=30)
+    f.add_argument("--start", default="1.0,0.15", help="starting C_d,C_h")
+    f.add_argument("--learning-rate", type=float, default=0.15, help="Adam step in log space")
+    f.add_argument("--landscape", type=int, default=4, help="N: an N x N landscape grid (0: none)")
+    f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"))
+    f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"))
+    f.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except (ValueError, FileExistsError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""The forward model: debris-cloud parameters -> the three feature velocities (km/s).
+
+theta = (log C_d, log C_h): both are positive, and their effects span decades, so the fit works
+in log space. `CloudModel.velocities(theta)` runs the fixed-length, checkpointed `simulate` (so
+`jax.grad` through it keeps memory at one step per output interval) and measures the features of
+`jaxmpm.features` over the later half of the outputs (after the cloud has formed).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxmpm
+from jaxmpm import features
+
+COARSE_RESOLUTION = 0.75            # the coarsest with >= 4 cells across the plate
+
+
+@dataclass(frozen=True)
+class CloudModel:
+    scene: object
+    params: object                   # Params at the scene's defaults (C_d, C_h replaced by theta)
+    state: object                    # initial State
+    n_steps: int
+    t_end: float
+    n_out: int = 12
+    first: int = 6                   # first output of the velocity fit (the later half)
+
+    @staticmethod
+    def build(resolution=COARSE_RESOLUTION, fields=2, t_end=6e-6, n_out=12, max_c_h=1.0, **scene_options):
+        """The debris cloud at `resolution` with `fields` velocity fields (2: projectile and plate
+        apart, so C_d acts). Steps are planned at C_h = max_c_h (the stiffest case)."""
+        scene = jaxmpm.load_scene("debris_cloud", resolution=resolution, fields=fields, t_end=t_end, **scene_options)
+        params = jaxmpm.default_params(scene)
+        state = jaxmpm.init_state(scene, params)
+        n_steps = jaxmpm.plan_steps(scene, dataclasses.replace(params, c_h=jnp.asarray(max_c_h, params.c_h.dtype)),
+                                    state, t_end)
+        return CloudModel(scene, params, state, n_steps, float(t_end), n_out, n_out // 2)
+
+    def with_theta(self, theta):
+        """Params with C_d = exp(theta[0]), C_h = exp(theta[1])."""
+        dt = self.params.c_h.dtype
+        theta = jnp.asarray(theta, dt)
+        return dataclasses.replace(self.params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
+
+    def velocities_of_history(self, history):
+        """(3,) km/s, downstream positive, of points 1, 2, 4 from a history."""
+        return -features.feature_velocities(self.scene, history, first=self.first) / 1000.0
+
+    def velocities(self, theta, checkpoint=True):
+        """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
+        _, hist = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
+                                  n_steps=self.n_steps, checkpoint=checkpoint)
+        return self.velocities_of_history(hist)
+
+    def velocities_batch(self, thetas):
+        """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`)."""
+        thetas = np.asarray(thetas, dtype=float)
+        batch = jaxmpm.batch.sweep(self.params, drag_coefficient=np.exp(thetas[:, 0]), c_h=np.exp(thetas[:, 1]))
+        _, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out, n_steps=self.n_steps)
+        return jax.vmap(self.velocities_of_history)(hist)
+
+
+def theta_of(c_d, c_h):
+    if not (c_d > 0 and c_h > 0):
+        raise ValueError(f"C_d = {c_d!r}, C_h = {c_h!r} are invalid: allowed > 0 both (the fit works in log space)")
+    return np.log([float(c_d), float(c_h)])

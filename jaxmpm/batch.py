@@ -1,0 +1,117 @@
+"""Batched runs: many Params of one scene in one compiled call (vmap), sharded across devices.
+
+    batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15, 0.5, 1.0])        # Params with a leading axis
+    final, history = jaxmpm.ensemble(scene, batch, t_end=..., n_out=...)  # every leaf: (B, ...)
+
+The scene (and so the compiled step) is shared; only the numbers differ. Every member runs the
+same number of scan steps (the largest any member needs); a member whose CFL step is longer
+reaches each output time early and then takes zero-length steps, so each member's history is
+exactly its single run's on the fixed-length driver (`simulate(..., n_steps=n)`).
+
+Where several devices exist (GPUs, or CPU devices from
+XLA_FLAGS=--xla_force_host_platform_device_count=N), the batch is split across them along its
+leading axis with `jax.sharding` (padded by repeating the last member, then trimmed).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.params import Params
+from jaxmpm.simulate import plan_steps, simulate
+
+
+def stack(items):
+    """One pytree with a leading axis from a list of equal-structure pytrees (Params or States)."""
+    if not items:
+        raise ValueError("stack: the list is empty: allowed one or more Params")
+    return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *items)
+
+
+def member(batch, i: int):
+    """The i-th member of a batched pytree."""
+    return jax.tree.map(lambda a: a[i], batch)
+
+
+def batch_size(batch) -> int:
+    sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(batch)}
+    if len(sizes) != 1 or -1 in sizes:
+        raise ValueError(f"params_batch leaves have leading sizes {sorted(sizes)}: allowed one common "
+                         "leading (batch) axis on every leaf (build it with jaxmpm.batch.sweep or stack)")
+    return sizes.pop()
+
+
+def sweep(params: Params, **values) -> Params:
+    """Params with a leading batch axis: each named top-level field (c_h, drag_coefficient, cfl, ...)
+    takes the given values in turn; all other numbers are repeated. Several fields must have equal
+    lengths (zipped, not crossed: cross them with numpy.meshgrid first)."""
+    names = {f.name for f in dataclasses.fields(Params)} - {"phases", "body_force"}
+    n = None
+    for k, v in values.items():
+        if k not in names:
+            raise ValueError(f"sweep: {k!r} is not a Params field: allowed {sorted(names)}")
+        v = np.asarray(v, dtype=float)
+        if v.ndim != 1 or v.size == 0:
+            raise ValueError(f"sweep: {k} has shape {v.shape}: allowed a 1D list of values")
+        if n is not None and v.size != n:
+            raise ValueError(f"sweep: {k} has {v.size} values, another field {n}: allowed equal lengths")
+        n = v.size
+    if n is None:
+        raise ValueError("sweep: name at least one field, e.g. sweep(params, c_h=[0.02, 0.15])")
+    batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), params)
+    dtype = jnp.result_type(params.cfl)
+    return dataclasses.replace(batch, **{k: jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+def _shard(batch, n: int):
+    """Pad the batch to a multiple of the device count and place it split along axis 0."""
+    devices = jax.devices()
+    if len(devices) < 2:
+        return batch, n
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    m = -(-n // len(devices)) * len(devices)
+    if m != n:
+        batch = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], m - n, axis=0)]), batch)
+    sharding = NamedSharding(Mesh(np.asarray(devices), ("batch",)), PartitionSpec("batch"))
+    return jax.device_put(batch, sharding), m
+
+
+def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
+             checkpoint=False, shard=True):
+    """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
+    for all, or a batched State; default: each member's own initial state) to t_end (s).
+
+    Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
+    per member (default: the most any member's CFL step needs, planned on the host). shard: split
+    the batch across all devices when more than one exists. The members' results equal their
+    single runs with the same n_steps (tests)."""
+    from jaxmpm.scenes import initial_state
+
+    t_end = scene.t_end if t_end is None else float(t_end)
+    n_out = scene.n_out if n_out is None else int(n_out)
+    B = batch_size(params_batch)
+    members = [member(params_batch, i) for i in range(B)]
+    if state is None:
+        state = stack([initial_state(scene, p) for p in members])
+    batched_state = jnp.ndim(state.t) == 1
+    if batched_state and int(state.t.shape[0]) != B:
+        raise ValueError(f"state has a batch of {state.t.shape[0]}, params_batch {B}: allowed equal sizes")
+    if n_steps is None:
+        n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end)
+                      for i, p in enumerate(members))
+
+    def one(p, s):
+        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint)
+
+    if not batched_state:
+        state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
+    if shard:
+        (params_batch, state), m = _shard((params_batch, state), B)
+    final, history = jax.jit(jax.vmap(one))(params_batch, state)
+    if shard and m != B:
+        final, history = jax.tree.map(lambda a: a[:B], (final, history))
+    return final, history

@@ -1,0 +1,151 @@
+"""calibration/: the packaged experiment table, its checks, the batched runs it stands on (ensemble,
+sharding), the debris cloud's C_h sweep, and the gradient of the fit's loss."""
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmpm
+from calibration import data
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "piekutowski_debris_cloud.csv"
+
+
+def test_packaged_table_equals_the_shared_data():
+    if not SHARED.exists():
+        pytest.skip(f"{SHARED} not present (only beside the project's shared folder)")
+    assert data.DEFAULT_CSV.read_bytes() == SHARED.read_bytes()
+    m = data.load()
+    np.testing.assert_array_equal(m.experiment, [6.3, 6.1, 3.9])
+    np.testing.assert_array_equal(m.seed[0.02], [6.29, 5.97, 3.92])
+    assert sorted(m.seed) == [0.02, 0.15, 0.5, 1.0]
+
+
+GOOD = "point,experiment_km_s,ch_0.02\n1,6.3,6.29\n2,6.1,5.97\n4,3.9,3.92\n"
+
+
+@pytest.mark.parametrize("text, match", [
+    (GOOD.replace("experiment_km_s", "exp"), "column 'experiment_km_s' is missing"),
+    (GOOD.replace("6.1,", "fast,"), r"row 2, column 'experiment_km_s': 'fast' is not a number"),
+    (GOOD.replace("3.92", "-3.92"), r"row 3, column 'ch_0.02': -3.92 km/s is invalid: allowed \(0, 20"),
+    (GOOD.replace("\n4,", "\n3,"), r"row 3, column 'point': point 3 is unknown: allowed \(1, 2, 4\)"),
+    (GOOD.replace("\n4,3.9,3.92\n", "\n"), "point 4 is missing"),
+    (GOOD.replace("\n2,", "\n1,"), "row 2, column 'point': point 1 is repeated"),
+    (GOOD.replace("ch_0.02", "ch_x"), "column 'ch_x': 'x' is not a value of C_h"),
+    (GOOD.replace("6.3,6.29", "6.3"), "row 1: has 2 values, the header 3"),
+])
+def test_bad_tables_are_refused_naming_row_and_column(tmp_path, text, match):
+    path = tmp_path / "t.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        data.load(path)
+
+
+def _small_cloud(t_end=3e-7):
+    scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=t_end)
+    params = jaxmpm.default_params(scene)
+    return scene, params, jaxmpm.init_state(scene, params)
+
+
+def test_ensemble_equals_the_single_runs():
+    scene, params, s0 = _small_cloud()
+    batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15, 0.5, 1.0], drag_coefficient=[0.5, 1.0, 2.0, 4.0])
+    n = 40
+    final, hist = jaxmpm.ensemble(scene, batch, t_end=3e-7, n_out=2, n_steps=n)
+    assert final.x.shape[0] == 4 and hist.x.shape[:2] == (4, 3)
+    for i in range(4):
+        f1, h1 = jaxmpm.simulate(scene, jaxmpm.batch.member(batch, i), s0, t_end=3e-7, n_out=2, n_steps=n)
+        for a, b in zip(jax.tree.leaves(jaxmpm.batch.member((final, hist), i)), jax.tree.leaves((f1, h1))):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-5, atol=1e-6 * float(np.max(np.abs(b)) + 1e-30))
+    # the members differ (the sweep is not a broadcast of one)
+    assert float(jnp.max(jnp.abs(final.v[0] - final.v[3]))) > 1.0
+
+
+def test_sweep_and_batch_errors():
+    scene, params, _ = _small_cloud()
+    with pytest.raises(ValueError, match="'C_h' is not a Params field"):
+        jaxmpm.batch.sweep(params, C_h=[1.0])
+    with pytest.raises(ValueError, match="c_h has 2 values, another field 3"):
+        jaxmpm.batch.sweep(params, drag_coefficient=[1.0, 2.0, 3.0], c_h=[0.1, 0.2])
+    bad = dataclasses.replace(jaxmpm.batch.sweep(params, c_h=[0.1, 0.2]), cfl=params.cfl)
+    with pytest.raises(ValueError, match="one common leading"):
+        jaxmpm.ensemble(scene, bad, t_end=1e-7)
+
+
+SHARD_SCRIPT = """
+import jax, numpy as np, jaxmpm
+assert len(jax.devices()) == 2, jax.devices()
+scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=2e-7)
+params = jaxmpm.default_params(scene)
+batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15, 0.5])     # 3 members on 2 devices: padded
+a, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=20, shard=True)
+b, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=20, shard=False)
+assert a.x.shape[0] == 3
+for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+    np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-9, atol=1e-12 * float(np.max(np.abs(np.asarray(y))) + 1e-30))
+print("sharded == unsharded")
+"""
+
+
+def test_sharded_ensemble_on_two_host_devices_equals_the_unsharded_one():
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    r = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "sharded == unsharded" in r.stdout
+
+
+@pytest.fixture(scope="module")
+def ch_sweep():
+    """The seed's C_h sweep on the coarse cloud (one field, float64 as all tests, 6 us), one vmapped call."""
+    from calibration.model import CloudModel
+
+    model = CloudModel.build(resolution=0.75, fields=1)
+    values = np.array([0.02, 0.15, 0.5, 1.0])
+    batch = jaxmpm.batch.sweep(model.params, c_h=values)
+    final, hist = jaxmpm.ensemble(model.scene, batch, model.state, t_end=model.t_end, n_out=model.n_out,
+                                  n_steps=model.n_steps)
+    v = np.asarray(jax.vmap(model.velocities_of_history)(hist))
+    return model, final, v
+
+
+def test_coarse_cloud_sweep_is_finite_and_conserves_axial_momentum(ch_sweep):
+    model, final, v = ch_sweep
+    assert all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(final))
+    p0 = float(jaxmpm.diagnostics.momentum(model.state)[1])
+    for i in range(4):
+        p1 = float(jaxmpm.diagnostics.momentum(jaxmpm.batch.member(final, i))[1])
+        assert abs(p1 / p0 - 1) < 0.005
+    assert np.all((v > 3.0) & (v < 7.0)), v
+
+
+def test_coarse_cloud_follows_the_seeds_trend_in_c_h(ch_sweep):
+    """Point 4 (rear of the projectile) speeds up as C_h grows (seed: 3.92, 4.09, 6.1, 6.11 km/s)
+    and at C_h = 0.02 trails points 1 and 2 (experiment 6.3, 6.1 > 3.9)."""
+    _, _, v = ch_sweep
+    assert np.all(np.diff(v[:, 2]) > 0), v[:, 2]
+    assert v[0, 2] < v[0, 1] - 0.2 and v[0, 2] < v[0, 0] - 0.2, v[0]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 11): measured AD (0.131, -0.854) against central differences "
+                   "(-0.052, -0.910): the C_d component disagrees in sign, the C_h one by 6%")
+def test_gradient_of_the_fit_loss_matches_finite_differences():
+    """float64, two fields, 3 us: d loss / d (log C_d, log C_h) against central differences."""
+    from calibration.fit import loss_fn
+    from calibration.model import CloudModel
+
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6)
+    target = data.load().experiment
+    loss = jax.jit(lambda th: loss_fn(model.velocities, target)(th)[0])
+    theta = jnp.log(jnp.array([1.0, 0.15]))
+    g = np.asarray(jax.jit(jax.grad(lambda th: loss_fn(model.velocities, target)(th)[0]))(theta))
+    assert g.dtype == np.float64 and np.all(np.isfinite(g))
+    eps = 0.02
+    fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
+    np.testing.assert_allclose(g, fd, rtol=0.05, atol=0.02 * np.max(np.abs(fd)))
