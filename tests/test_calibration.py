@@ -149,3 +149,30 @@ def test_gradient_of_the_fit_loss_matches_finite_differences():
     eps = 0.02
     fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
     np.testing.assert_allclose(g, fd, rtol=0.05, atol=0.02 * np.max(np.abs(fd)))
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["fit", "--start", "1.0"], r"--start '1.0' is invalid: allowed two numbers 'C_d,C_h'"),
+    (["fit", "--start=-1,0.1"], r"--start '-1,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
+    (["table", "--c-h", "0.1,-0.5"], r"--c-h '0.1,-0.5' is invalid: allowed C_h values > 0"),
+    (["fit", "--iterations", "0"], r"--iterations 0 is invalid: allowed an integer >= 1"),
+])
+def test_calibration_command_refuses_bad_options(tmp_path, capsys, argv, match):
+    import re
+
+    from calibration.__main__ import main
+
+    assert main(argv + ["--out", str(tmp_path / "new")]) == 2
+    assert re.search(match, capsys.readouterr().err)
+    assert not (tmp_path / "new").exists()
+
+
+def test_calibration_command_never_overwrites_a_previous_result(tmp_path, capsys):
+    from calibration.__main__ import main
+
+    old = tmp_path / "previous"
+    old.mkdir()
+    (old / "result.json").write_text("{}")
+    assert main(["table", "--out", str(old)]) == 2
+    assert "exists and is not empty: a previous result is never overwritten" in capsys.readouterr().err
+    assert (old / "result.json").read_text() == "{}"
