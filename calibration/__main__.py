@@ -64,8 +64,12 @@ def cmd_table(args) -> int:
           f"{model.n_steps} steps to {model.t_end:g} s; C_h = {values} in one vmapped call", flush=True)
     t0 = time.perf_counter()
     thetas = np.log(np.stack([np.full(len(values), args.drag), values], -1))
-    v = np.asarray(model.velocities_batch(thetas))
+    v = np.asarray(model.velocities_batch(thetas, allow_short=True))
     wall = time.perf_counter() - t0
+    for c, vi in zip(values, v):
+        if np.isnan(vi).any():
+            print(f"C_h = {c:g}: the run did not reach t_end in {model.n_steps} steps (its CFL step collapsed): "
+                  "velocities not measured (nan)")
     rows = table_rows(meas, values, v)
     print(format_table(rows))
     print(f"wall time {wall:.1f} s (compilation included)")
@@ -114,6 +118,10 @@ def cmd_fit(args) -> int:
     se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
     print(f"stopped: {res.stopped}")
+    reached = model.reached(res.theta)
+    if reached < model.t_end * (1 - 1e-6):
+        print(f"warning: at the fit the run reaches only t = {reached:.4g} s of {model.t_end:g} s in {model.n_steps} "
+              "steps (its CFL step collapsed): the fitted velocities are not measured over the intended window")
     print(f"C_d = {c_d:.4g} +- {se[0]:.2g}, C_h = {c_h:.4g} +- {se[1]:.2g} (Gauss-Newton, cond(J^T J) = {cond:.3g})")
     fitted = meas.experiment + res.residuals
     print(f"{'point':<8}{'experiment':>12}{'fit':>10}{'residual':>10}{'seed C_h=0.02':>15}")
@@ -124,14 +132,14 @@ def cmd_fit(args) -> int:
     if args.landscape >= 2:
         cds = np.geomspace(args.landscape_cd[0], args.landscape_cd[1], args.landscape)
         chs = np.geomspace(args.landscape_ch[0], args.landscape_ch[1], args.landscape)
-        loss, _ = F.landscape(model.velocities_batch, meas.experiment, cds, chs)
+        loss, _ = F.landscape(lambda th: model.velocities_batch(th, allow_short=True), meas.experiment, cds, chs)
         land = dict(C_d=cds.tolist(), C_h=chs.tolist(), loss=loss.tolist())
     wall = time.perf_counter() - t0
     result = dict(
         fitted=dict(C_d=float(c_d), C_h=float(c_h), se_C_d=float(se[0]), se_C_h=float(se[1]),
                     se_log_C_d=float(se_theta[0]), se_log_C_h=float(se_theta[1]), jacobian_km_s=J.tolist(),
                     condition_JtJ=cond),
-        loss=res.loss, stopped=res.stopped, points=list(meas.points), experiment_km_s=meas.experiment.tolist(),
+        loss=res.loss, stopped=res.stopped, reached_t_end=bool(reached >= model.t_end * (1 - 1e-6)), points=list(meas.points), experiment_km_s=meas.experiment.tolist(),
         fitted_km_s=fitted.tolist(), residuals_km_s=res.residuals.tolist(), max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
         history=res.history, landscape=land,
         settings=dict(resolution=args.resolution, fields=args.fields, t_end=model.t_end, n_steps=model.n_steps,

@@ -60,15 +60,26 @@ class CloudModel:
                                   n_steps=self.n_steps, checkpoint=checkpoint)
         return self.velocities_of_history(hist)
 
-    def velocities_batch(self, thetas):
-        """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`)."""
+    def reached(self, theta):
+        """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
+        step collapses): check it outside jax.grad, where `velocities` cannot."""
+        final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
+                                   n_steps=self.n_steps)
+        return float(final.t)
+
+    def velocities_batch(self, thetas, allow_short=False):
+        """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`); with
+        allow_short, members that do not reach t_end give NaN instead of an error."""
         thetas = np.asarray(thetas, dtype=float)
         values = dict(c_h=np.exp(thetas[:, 1]))
         if self.scene.drag is not None:
             values["drag_coefficient"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
-        _, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out, n_steps=self.n_steps)
-        return jax.vmap(self.velocities_of_history)(hist)
+        final, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out,
+                                      n_steps=self.n_steps, allow_short=allow_short)
+        v = jax.vmap(self.velocities_of_history)(hist)
+        short = final.t < self.t_end * (1 - 1e-6)
+        return jnp.where(short[:, None], jnp.nan, v)
 
 
 def theta_of(c_d, c_h):

@@ -81,14 +81,17 @@ def _shard(batch, n: int):
 
 
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
-             checkpoint=False, shard=True):
+             checkpoint=False, shard=True, allow_short=False):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
     Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
     per member (default: the most any member's CFL step needs, planned on the host). shard: split
     the batch across all devices when more than one exists. The members' results equal their
-    single runs with the same n_steps (tests)."""
+    single runs with the same n_steps (tests).
+
+    A member whose CFL step shrinks during the run may not reach t_end in n_steps: then a
+    RuntimeError names it and the time it reached, unless allow_short (then check final.t)."""
     from jaxmpm.scenes import initial_state
 
     t_end = scene.t_end if t_end is None else float(t_end)
@@ -114,4 +117,10 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     final, history = jax.jit(jax.vmap(one))(params_batch, state)
     if shard and m != B:
         final, history = jax.tree.map(lambda a: a[:B], (final, history))
+    reached = np.asarray(final.t)
+    short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
+    if short.size and not allow_short:
+        raise RuntimeError(f"{scene.name}: member(s) {short.tolist()} reached only t = {reached[short].tolist()} s of "
+                           f"t_end = {t_end:g} s in n_steps = {n_steps} (their CFL step shrank during the run): pass a "
+                           "larger n_steps, or allow_short=True and check final.t")
     return final, history
