@@ -31,14 +31,16 @@ class CloudModel:
     first: int = 6                   # first output of the velocity fit (the later half)
 
     @staticmethod
-    def build(resolution=COARSE_RESOLUTION, fields=2, t_end=6e-6, n_out=12, max_c_h=1.0, **scene_options):
+    def build(resolution=COARSE_RESOLUTION, fields=2, t_end=6e-6, n_out=12, max_c_h=1.0, safety=2.0, **scene_options):
         """The debris cloud at `resolution` with `fields` velocity fields (2: projectile and plate
-        apart, so C_d acts). Steps are planned at C_h = max_c_h (the stiffest case)."""
+        apart, so C_d acts). Steps: `safety` times the initial CFL estimate at C_h = max_c_h (the
+        step shrinks as the cloud heats: at resolution 0.75, C_h = 1 needs ~1.6x; steps past
+        t_end have zero length)."""
         scene = jaxmpm.load_scene("debris_cloud", resolution=resolution, fields=fields, t_end=t_end, **scene_options)
         params = jaxmpm.default_params(scene)
         state = jaxmpm.init_state(scene, params)
         n_steps = jaxmpm.plan_steps(scene, dataclasses.replace(params, c_h=jnp.asarray(max_c_h, params.c_h.dtype)),
-                                    state, t_end)
+                                    state, t_end, safety=safety)
         return CloudModel(scene, params, state, n_steps, float(t_end), n_out, n_out // 2)
 
     def with_theta(self, theta):

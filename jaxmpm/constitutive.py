@@ -7,6 +7,7 @@ Shapes: N particles, d dimensions; SI units.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from jaxmpm.materials.models import MatPoint, model_of
 
@@ -47,12 +48,24 @@ def per_phase(lay, params, state, fn):
 
 
 def bulk_modulus_and_wave_speed(lay, params, state):
-    """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state."""
+    """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state.
+
+    Failed material (damage D, 1 = failed) carries no shear, so its longitudinal speed loses the
+    shear part: c^2 = K / rho + (1 - D)(c_model^2 - K / rho) for the hydrocode models, whose
+    c_model^2 = K / rho + 4 G / (3 rho). Without it a failed particle expanded to 1e-4 of its
+    density kept 4 G / (3 rho) ~ (500 km/s)^2 and the CFL step of the debris cloud collapsed."""
     rho = state.mass / state.volume
     K = per_phase(lay, params, state, lambda m, c, sl: m.bulk_modulus(c, rho[sl], state.energy[sl], lay.scene.material_dim)
                   * jnp.ones_like(rho[sl]))
     cw = per_phase(lay, params, state, lambda m, c, sl: m.wave_speed(c, rho[sl], state.energy[sl], lay.scene.material_dim)
                    * jnp.ones_like(rho[sl]))
+    hydro = np.concatenate([np.full(sl.stop - sl.start, model_of(lay.scene.material(p).model).hydro, bool)
+                            for p, sl in zip(lay.scene.phases, lay.slices)])
+    if hydro.any():
+        cb2 = K / rho
+        shear = jnp.maximum(cw * cw - cb2, 0.0)
+        failed_speed = jnp.sqrt(cb2 + (1.0 - state.damage) * shear)
+        cw = jnp.where(jnp.asarray(hydro), failed_speed, cw)
     return K, cw
 
 

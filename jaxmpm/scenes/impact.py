@@ -34,12 +34,11 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     Status: not yet validated. `python -m calibration table` runs the seed's C_h sweep in one
     vmapped call. Measured at resolution 0.75 (1004 particles, one field, features over 3-6 us;
     float32 and float64 agree to 1e-4), points 1, 2, 4 in km/s: C_h = 0.02: 5.24, 5.25, 5.85;
-    0.15: 5.29, 5.32, 5.91; 0.5: 5.49, 5.47, 6.07 (experiment 6.3, 6.1, 3.9; the seed 6.29,
-    5.97, 3.92 at C_h = 0.02). Point 4 rises with C_h as in the seed, but the projectile's rear is
-    not slowed enough (5.85 against 3.9) and points 1 and 2 are ~1 km/s slow and equal (the
-    plate's material does not lead the cloud; after 6 us all three move at 5.31 km/s). At
-    C_h = 1 the CFL step collapses (~5e-11 s by 2 us): failed material expanded to ~1% of rho0
-    keeps Mie-Grueneisen pressures of 10-57 GPa (Gamma rho = Gamma0 rho0 in expansion).
+    0.15: 5.29, 5.31, 5.91; 0.5: 5.50, 5.47, 6.07; 1.0: 5.46, 5.48, 6.18 (experiment 6.3, 6.1,
+    3.9; the seed 6.29, 5.97, 3.92 at C_h = 0.02). Point 4 rises with C_h as in the seed, but the
+    projectile's rear is not slowed enough (5.85 against 3.9) and points 1 and 2 are ~1 km/s slow
+    and equal (the plate's material does not lead the cloud; after 6 us all three move at
+    5.31 km/s).
     """
     if fields not in (1, 2):
         raise ValueError(f"fields = {fields!r} is invalid: allowed 1 | 2")
