@@ -160,6 +160,7 @@ def test_two_fields_with_the_closure_and_interface_forces_do_not_create_energy()
     assert max(e) <= e[0] * (1 + 1e-3), [x / e[0] - 1 for x in e]
 
 
+@pytest.mark.slow
 def test_debris_cloud_first_version_runs_and_conserves():
     """The built-in debris cloud (one field, coarsest resolution 0.75, 2 us): finite, mass exact, axial momentum
     conserved, kinetic + internal energy within 1% (its physics is not validated yet)."""

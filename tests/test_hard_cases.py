@@ -85,6 +85,7 @@ def test_alpha_to_zero_everywhere_in_an_impact():
     check(scene, params, s0, n, jnp.asarray(0.01), lambda p, s, c: (dataclasses.replace(p, c_h=c), s))
 
 
+@pytest.mark.slow
 def test_10000_float32_steps_of_the_default_scene_in_a_box():
     with jax.enable_x64(False):
         scene = dataclasses.replace(jaxmpm.load_scene("elastic_impact"), boundary=WALLS)
@@ -119,6 +120,7 @@ def test_nodes_with_1e_minus_12_of_their_neighbours_mass(shape):
     assert float(jnp.max(jnp.abs(check.final.v))) < 1000.0          # 100 m/s plus the release of 0.1 GPa
 
 
+@pytest.mark.slow
 def test_a_phase_with_zero_volume_fraction_at_nodes():
     """Aluminium (full library model) in field 0 flies at 500 m/s into air (ideal gas, field 1) that
     fills only the right half of the box: at many nodes one field has zero volume fraction, with

@@ -188,7 +188,11 @@ def largest_eigenvalue_3x3(s):
     B = s - q[:, None, None] * _eye(3, s.dtype)
     p = jnp.sqrt(jnp.sum(B * B, axis=(-1, -2)) / 6)
     safe = jnp.where(p > 0, p, 1.0)
-    r = jnp.clip(jnp.linalg.det(B / safe[:, None, None]) / 2, -1.0, 1.0)
+    C = B / safe[:, None, None]
+    det = (C[:, 0, 0] * (C[:, 1, 1] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 1])
+           - C[:, 0, 1] * (C[:, 1, 0] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 0])
+           + C[:, 0, 2] * (C[:, 1, 0] * C[:, 2, 1] - C[:, 1, 1] * C[:, 2, 0]))
+    r = jnp.clip(det / 2, -1.0, 1.0)
     return q + jnp.where(p > 0, 2 * p * jnp.cos(jnp.arccos(r) / 3), 0.0)
 
 
