@@ -49,7 +49,8 @@ def _setup(args):
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
     from calibration.model import CloudModel
-    return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end)
+    return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end,
+                            fragmentation=args.fragmentation)
 
 
 def cmd_table(args) -> int:
@@ -76,7 +77,7 @@ def cmd_table(args) -> int:
     csv_path = out / "ch_table.csv"
     with open(csv_path, "w") as f:
         f.write("# debris-cloud feature velocities (km/s, downstream positive); jaxmpm at resolution "
-                f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, t_end = {model.t_end:g} s\n")
+                f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, fragmentation {args.fragmentation}, t_end = {model.t_end:g} s\n")
         f.write("source,C_h,point_1,point_2,point_4\n")
         for r in rows:
             f.write(f"{r['source']},{'' if r['C_h'] is None else r['C_h']},{r['v'][0]:.4f},{r['v'][1]:.4f},{r['v'][2]:.4f}\n")
@@ -114,10 +115,10 @@ def cmd_fit(args) -> int:
           f"{model.n_steps} steps to {model.t_end:g} s; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
     t0 = time.perf_counter()
     res = F.fit(model.velocities, meas.experiment, theta_of(*start), iterations=args.iterations,
-                learning_rate=args.learning_rate, progress=not args.no_progress)
+                learning_rate=args.learning_rate, progress=not args.no_progress, method=args.method)
     se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
-    print(f"stopped: {res.stopped}")
+    print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
     reached = model.reached(res.theta)
     if reached < model.t_end * (1 - 1e-6):
         print(f"warning: at the fit the run reaches only t = {reached:.4g} s of {model.t_end:g} s in {model.n_steps} "
@@ -142,14 +143,36 @@ def cmd_fit(args) -> int:
         loss=res.loss, stopped=res.stopped, reached_t_end=bool(reached >= model.t_end * (1 - 1e-6)), points=list(meas.points), experiment_km_s=meas.experiment.tolist(),
         fitted_km_s=fitted.tolist(), residuals_km_s=res.residuals.tolist(), max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
         history=res.history, landscape=land,
-        settings=dict(resolution=args.resolution, fields=args.fields, t_end=model.t_end, n_steps=model.n_steps,
+        settings=dict(resolution=args.resolution, fields=args.fields, fragmentation=args.fragmentation,
+                      t_end=model.t_end, n_steps=model.n_steps,
                       particles=int(model.state.x.shape[0]), start=list(start), iterations=args.iterations,
-                      learning_rate=args.learning_rate, float32=args.float32, data=meas.source, wall_seconds=wall,
+                      method=args.method, evaluations=res.evaluations, learning_rate=args.learning_rate, float32=args.float32, data=meas.source, wall_seconds=wall,
                       argv=sys.argv),
         versions=_versions())
     (out / "result.json").write_text(json.dumps(result, indent=1))
     pngs = plots.fit_report(result, out)
     print(f"wall time {wall:.1f} s\nwrote:\n  {out / 'result.json'}" + "".join(f"\n  {p}" for p in pngs))
+    return 0
+
+
+def cmd_synthetic(args) -> int:
+    """Synthetic recovery on the small two-phase scene of calibration.synthetic: observables
+    generated at (C_d, C_h) = --truth, the fit started at --start, recovered values printed."""
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    from calibration import fit as F
+    from calibration.model import theta_of
+    from calibration.synthetic import DebrisInWaterModel
+    truth, start = _pair(args.truth, "--truth"), _pair(args.start, "--start")
+    model = DebrisInWaterModel.build()
+    print(f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
+          f"truth C_d = {truth[0]:g}, C_h = {truth[1]:g}; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
+    target = jax.jit(model.observables)(theta_of(*truth))
+    res = F.fit(model.observables, target, theta_of(*start), iterations=args.iterations, method=args.method,
+                tol=1e-12, progress=not args.no_progress)
+    err = res.values / np.asarray(truth) - 1
+    print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} evaluations, {res.seconds:.1f} s)")
+    print(f"recovered C_d = {res.values[0]:.6g} ({100 * err[0]:+.2g}%), C_h = {res.values[1]:.6g} ({100 * err[1]:+.2g}%)")
     return 0
 
 
@@ -164,6 +187,9 @@ def build_parser():
         p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
         p.add_argument("--data", default=None, help="the experiment's CSV (default: the packaged copy)")
         p.add_argument("--out", default=default_out, help="output folder (must not hold a previous result)")
+        p.add_argument("--fragmentation", choices=("failed", "plastic"), default="failed",
+                       help="what the closure counts as fragmented: failed material's plastic strain (default) "
+                       "or all plastic strain (the seed's E5)")
         p.add_argument("--float32", action="store_true", help="float32 (default float64: float32 adjoints of "
                        "the two-field cloud overflow past ~2 us)")
     t = sub.choices["table"]
@@ -172,11 +198,20 @@ def build_parser():
     f = sub.choices["fit"]
     f.add_argument("--iterations", type=int, default=30)
     f.add_argument("--start", default="1.0,0.15", help="starting C_d,C_h")
+    f.add_argument("--method", choices=("adam", "lbfgs"), default="adam",
+                   help="optimiser: adam (robust from a poor start) or lbfgs (line search; few iterations near the optimum)")
     f.add_argument("--learning-rate", type=float, default=0.15, help="Adam step in log space")
     f.add_argument("--landscape", type=int, default=4, help="N: an N x N landscape grid (0: none)")
     f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"))
     f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"))
     f.add_argument("--no-progress", action="store_true")
+    y = sub.add_parser("synthetic", help="recover known (C_d, C_h) on a small two-phase scene (about a minute)")
+    y.set_defaults(fn=cmd_synthetic)
+    y.add_argument("--truth", default="1.0,0.15", help="C_d,C_h that generate the observables")
+    y.add_argument("--start", default="2.0,0.3", help="starting C_d,C_h")
+    y.add_argument("--iterations", type=int, default=20)
+    y.add_argument("--method", choices=("adam", "lbfgs"), default="lbfgs")
+    y.add_argument("--no-progress", action="store_true")
     return ap
 
 

@@ -2,9 +2,13 @@
 and the loss landscape.
 
 Loss (km/s)^2: L(theta) = sum_i w_i (v_i(theta) - v_i^exp)^2 over points 1, 2, 4, with
-theta = (log C_d, log C_h) and weights w (default 1). Optimiser: optax Adam with an exponentially
-decaying learning rate; stops early when the loss falls below `tol` or changes by less than
-`rtol` relative over `patience` iterations. The best iterate is returned (not the last).
+theta = (log C_d, log C_h) and weights w (default 1). Optimisers (optax): 'adam', Adam with an
+exponentially decaying learning rate (robust from a poor start; one value-and-gradient per
+iteration), or 'lbfgs', L-BFGS with a zoom line search (Wolfe conditions; it converges in a few
+iterations once the loss is smooth near the optimum, at one or more value-and-gradient evaluations
+per iteration, counted in `evaluations`). Both stop early when the loss falls below `tol` or
+changes by less than `rtol` relative over `patience` iterations. The best iterate is returned
+(not the last).
 
 Standard errors (Gauss-Newton): with J = d v / d theta (3 x 2, forward mode) at the fit and
 s^2 = sum_i w_i r_i^2 / (n - p) (n = 3 points, p = 2), Cov(theta) = s^2 (J^T W J)^-1; for
@@ -38,57 +42,96 @@ class FitResult:
     theta: np.ndarray                        # (2,) best (log C_d, log C_h)
     loss: float                              # at theta, (km/s)^2
     residuals: np.ndarray                    # (3,) km/s at theta, model - experiment
-    history: list = field(default_factory=list)   # per iteration: dict(iteration, loss, C_d, C_h, grad_norm, seconds)
+    history: list = field(default_factory=list)   # per iteration: dict(iteration, loss, C_d, C_h, grad (d loss /
+    #                                               d theta), grad_norm, residuals, evaluations, seconds)
     stopped: str = ""
     seconds: float = 0.0
+    method: str = "adam"
+    evaluations: int = 0                     # value-and-gradient evaluations (line searches included)
 
     @property
     def values(self):
         return np.exp(self.theta)
 
 
+METHODS = ("adam", "lbfgs")
+
+
+def _adam_step(loss, learning_rate, decay):
+    """(init, step): step(theta, state) -> (theta_new, state, loss, residuals, grad, evaluations)."""
+    value_and_grad = jax.value_and_grad(loss, has_aux=True)
+    opt = optax.adam(optax.exponential_decay(learning_rate, transition_steps=1, decay_rate=decay))
+
+    @jax.jit
+    def step(theta, state):
+        (value, r), g = value_and_grad(theta)
+        updates, state = opt.update(g, state, theta)
+        return optax.apply_updates(theta, updates), state, value, r, g, 1
+
+    return opt.init, step
+
+
+def _lbfgs_step(loss):
+    """As _adam_step for optax's L-BFGS; the residuals are those of the iterate (one forward run)."""
+    value_fn = lambda th: loss(th)[0]
+    opt = optax.lbfgs()
+    value_and_grad = optax.value_and_grad_from_state(value_fn)
+
+    @jax.jit
+    def step(theta, state):
+        value, g = value_and_grad(theta, state=state)
+        updates, new_state = opt.update(g, state, theta, value=value, grad=g, value_fn=value_fn)
+        n_eval = 1 + optax.tree_utils.tree_get(new_state, "num_linesearch_steps")
+        return optax.apply_updates(theta, updates), new_state, value, loss(theta)[1], g, n_eval
+
+    return opt.init, step
+
+
 def fit(velocities, target, theta0, iterations=30, learning_rate=0.15, decay=0.97, tol=1e-6, rtol=1e-4,
-        patience=5, weights=None, progress=True):
-    """Adam on theta from theta0. velocities: theta (2,) -> (3,) km/s, differentiable."""
+        patience=5, weights=None, progress=True, method="adam"):
+    """Minimise the loss over theta from theta0 with `method` ('adam' or 'lbfgs').
+    velocities: theta (2,) -> (3,) km/s (or any observables), differentiable."""
     if not (isinstance(iterations, int) and iterations >= 1):
         raise ValueError(f"iterations = {iterations!r} is invalid: allowed an integer >= 1")
-    value_and_grad = jax.jit(jax.value_and_grad(loss_fn(velocities, target, weights), has_aux=True))
-    schedule = optax.exponential_decay(learning_rate, transition_steps=1, decay_rate=decay)
-    opt = optax.adam(schedule)
+    if method not in METHODS:
+        raise ValueError(f"method = {method!r} is invalid: allowed {' | '.join(METHODS)}")
+    loss = loss_fn(velocities, target, weights)
+    init, step = _adam_step(loss, learning_rate, decay) if method == "adam" else _lbfgs_step(loss)
     theta = jnp.asarray(theta0, jnp.zeros(()).dtype)
-    state = opt.init(theta)
-    result = FitResult(theta=np.asarray(theta), loss=np.inf, residuals=np.full(3, np.nan))
+    # strong types throughout: a weakly typed leaf of the initial state would compile the step twice
+    state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), init(theta))
+    result = FitResult(theta=np.asarray(theta), loss=np.inf, residuals=np.full(3, np.nan), method=method)
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=iterations, desc="fit", unit="it")
+        bar = tqdm(total=iterations, desc=f"fit ({method})", unit="it")
     start = time.perf_counter()
     result.stopped = f"iterations ({iterations})"
     for it in range(iterations):
         t0 = time.perf_counter()
-        (loss, r), g = value_and_grad(theta)
-        loss, g_np = float(loss), np.asarray(g)
-        if not (np.isfinite(loss) and np.all(np.isfinite(g_np))):
+        new_theta, new_state, loss_v, r, g, n_eval = step(theta, state)
+        loss_v, g_np, n_eval = float(loss_v), np.asarray(g), int(n_eval)
+        result.evaluations += n_eval
+        if not (np.isfinite(loss_v) and np.all(np.isfinite(g_np))):
             result.stopped = f"non-finite loss or gradient at iteration {it} (theta = {np.asarray(theta).tolist()})"
             break
         c = np.exp(np.asarray(theta))
-        result.history.append(dict(iteration=it, loss=loss, C_d=float(c[0]), C_h=float(c[1]),
-                                   grad_norm=float(np.linalg.norm(g_np)), residuals=np.asarray(r).tolist(),
-                                   seconds=time.perf_counter() - t0))
-        if loss < result.loss:
-            result.theta, result.loss, result.residuals = np.asarray(theta), loss, np.asarray(r)
+        result.history.append(dict(iteration=it, loss=loss_v, C_d=float(c[0]), C_h=float(c[1]),
+                                   grad=g_np.tolist(), grad_norm=float(np.linalg.norm(g_np)), residuals=np.asarray(r).tolist(),
+                                   evaluations=n_eval, seconds=time.perf_counter() - t0))
+        if loss_v < result.loss:
+            result.theta, result.loss, result.residuals = np.asarray(theta), loss_v, np.asarray(r)
         if bar is not None:
-            bar.set_postfix_str(f"loss={loss:.4g} C_d={c[0]:.4g} C_h={c[1]:.4g}")
+            bar.set_postfix_str(f"loss={loss_v:.4g} C_d={c[0]:.4g} C_h={c[1]:.4g}")
             bar.update(1)
-        if loss < tol:
-            result.stopped = f"loss {loss:.3g} < tol {tol:g}"
+        if loss_v < tol:
+            result.stopped = f"loss {loss_v:.3g} < tol {tol:g}"
             break
         losses = [h["loss"] for h in result.history]
         if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
             result.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
             break
-        updates, state = opt.update(g, state, theta)
-        theta = optax.apply_updates(theta, updates)
+        theta, state = new_theta, new_state
     if bar is not None:
         bar.close()
     result.seconds = time.perf_counter() - start

@@ -246,6 +246,7 @@ class Boundary:
         return dict(self.faces).get(f"{AXES[axis]}_{side}", "free")
 
 
+FRAGMENTATION = ("failed", "plastic")
 FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
 
 
@@ -271,6 +272,11 @@ class Scene:
         interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields).
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
         for no closure (material volume follows the velocity divergence).
+      fragmentation: what the closure counts as fragmented (only with c_h). 'failed' (default):
+        in a phase whose model has a failure part (spall, Johnson-Cook failure, ...) alpha =
+        1 - D tanh(eps_ps / C_h), D in [0, 1] its damage, so the plastic strain of intact material
+        (a shock's) is not fragmentation; phases without a failure model use the seed's alpha.
+        'plastic': the seed's alpha = 1 - tanh(eps_ps / C_h) for every phase (jaxmpm.constitutive).
       artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
         q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
         av_quadratic), or None for none; only with equation-of-state (hydrocode) models.
@@ -295,6 +301,7 @@ class Scene:
     linear_drag: float | None = None
     interface_forces: bool = True
     c_h: float | None = None
+    fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
     axisymmetric: bool = False
     boundary: Boundary = field(default_factory=Boundary)
@@ -389,6 +396,8 @@ class Scene:
                 _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
         if not isinstance(self.interface_forces, bool):
             _fail("effects.interface_forces", self.interface_forces, "true | false")
+        if self.fragmentation not in FRAGMENTATION:
+            _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
         if self.c_h is not None and self.transfer == "apic":
             _fail("effects.c_h", self.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
         if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):

@@ -43,7 +43,8 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h", "artificial_viscosity")
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h", "fragmentation",
+               "artificial_viscosity")
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
 
@@ -140,6 +141,8 @@ def scene_from_dict(d: Mapping) -> Scene:
     for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag", "c_h"):
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
+    if "fragmentation" in e:
+        kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic'")
     for k in ("body_force", "interface_forces"):
         if k in e:
             kw[k] = _typed(e[k], (bool,), f"effects.{k}", "true | false")
@@ -171,6 +174,8 @@ def scene_to_dict(scene: Scene) -> dict:
             e[k] = getattr(scene, k)
     if not scene.interface_forces:
         e["interface_forces"] = False
+    if scene.c_h is not None and scene.fragmentation != "failed":
+        e["fragmentation"] = scene.fragmentation
     if scene.artificial_viscosity is not None:
         e["artificial_viscosity"] = list(scene.artificial_viscosity)
     d["effects"] = e

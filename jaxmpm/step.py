@@ -167,7 +167,7 @@ def phase_pressure_and_compressibility(lay, params, state):
     its own stress, so it must not act through the common pressure either (E6, E13)."""
     p = pressure(lay, state)
     if lay.scene.c_h is not None:
-        p = closure_alpha(params, state) * p
+        p = closure_alpha(lay, params, state) * p
     return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 

@@ -1,6 +1,7 @@
 """calibration/: the packaged experiment table, its checks, the batched runs it stands on (ensemble,
 sharding), the debris cloud's C_h sweep, and the gradient of the fit's loss."""
 import dataclasses
+import functools
 import os
 import subprocess
 import sys
@@ -100,23 +101,36 @@ def test_sharded_ensemble_on_two_host_devices_equals_the_unsharded_one():
     assert "sharded == unsharded" in r.stdout
 
 
-@pytest.fixture(scope="module")
-def ch_sweep():
+@functools.lru_cache(maxsize=2)
+def _sweep(fragmentation):
     """The seed's C_h sweep on the coarse cloud (one field, float64 as all tests, 6 us), one vmapped call."""
     from calibration.model import CloudModel
 
-    model = CloudModel.build(resolution=0.75, fields=1)
+    model = CloudModel.build(resolution=0.75, fields=1, fragmentation=fragmentation)
     values = np.array([0.02, 0.15, 0.5, 1.0])
     batch = jaxmpm.batch.sweep(model.params, c_h=values)
     final, hist = jaxmpm.ensemble(model.scene, batch, model.state, t_end=model.t_end, n_out=model.n_out,
                                   n_steps=model.n_steps, allow_short=True)
     v = np.asarray(jax.vmap(model.velocities_of_history)(hist))
+    print(f"fragmentation {fragmentation!r}: points 1, 2, 4 (km/s) for C_h = {values.tolist()}:\n{v.round(3)}")
     return model, final, v
 
 
+@pytest.fixture(scope="module")
+def ch_sweep():
+    return _sweep("failed")
+
+
+@pytest.fixture(scope="module")
+def ch_sweep_plastic():
+    return _sweep("plastic")
+
+
 @pytest.mark.slow
-def test_coarse_cloud_sweep_is_finite_and_conserves_axial_momentum(ch_sweep):
-    model, final, v = ch_sweep
+@pytest.mark.parametrize("fragmentation", ["failed", "plastic"])
+def test_coarse_cloud_sweep_is_finite_and_conserves_axial_momentum(fragmentation):
+    model, final, v = _sweep(fragmentation)
+    assert np.all(np.asarray(final.t) >= model.t_end * (1 - 1e-9)), np.asarray(final.t)
     assert all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(final))
     p0 = float(jaxmpm.diagnostics.momentum(model.state)[1])
     for i in range(4):
@@ -126,12 +140,22 @@ def test_coarse_cloud_sweep_is_finite_and_conserves_axial_momentum(ch_sweep):
 
 
 @pytest.mark.slow
-def test_coarse_cloud_follows_the_seeds_trend_in_c_h(ch_sweep):
-    """Point 4 (rear of the projectile) speeds up as C_h grows (seed: 3.92, 4.09, 6.1, 6.11 km/s;
-    measured 5.85, 5.91, 6.07, 6.18), every member having reached t_end."""
-    model, final, v = ch_sweep
-    assert np.all(np.asarray(final.t) >= model.t_end * (1 - 1e-9)), np.asarray(final.t)
+def test_coarse_cloud_with_the_seeds_closure_follows_the_seeds_trend_in_c_h(ch_sweep_plastic):
+    """With fragmentation = 'plastic' (the seed's E5) point 4 (rear of the projectile) speeds up as
+    C_h grows, as in the seed (3.92, 4.09, 6.1, 6.11 km/s; measured 5.85, 5.91, 6.07, 6.18 before
+    the walls)."""
+    _, _, v = ch_sweep_plastic
     assert np.all(np.diff(v[:, 2]) > 0), v[:, 2]
+
+
+@pytest.mark.slow
+def test_coarse_cloud_slows_the_projectile_rear_below_the_front(ch_sweep):
+    """Default closure (fragmentation 'failed'), C_h = 0.02: the projectile's rear (point 4) is
+    slower than the fronts (points 1, 2) by more than 0.3 km/s, as in the experiment (3.9 against
+    6.3, 6.1; measured 5.10 against 5.57, 5.57 at this resolution, 4.11 against 5.62, 5.80 at
+    resolution 2). With the seed's closure it was the fastest (5.85 against 5.24, 5.25)."""
+    _, _, v = ch_sweep
+    assert v[0, 2] < min(v[0, 0], v[0, 1]) - 0.3, v[0]
 
 
 def test_ensemble_names_a_member_that_falls_short_of_t_end():
@@ -142,11 +166,12 @@ def test_ensemble_names_a_member_that_falls_short_of_t_end():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 7): at C_h = 0.02 the coarse cloud's projectile rear (point 4) "
-                   "moves at 5.85 km/s, faster than points 1 and 2 (5.24, 5.24); experiment 6.3 > 6.1 > 3.9")
-def test_coarse_cloud_orders_the_features_as_the_experiment(ch_sweep):
+@pytest.mark.xfail(strict=False, reason="open (issue 7): at resolution 0.75 the debris front (point 1) and the "
+                   "projectile's front (point 2) move together (5.57, 5.57 km/s; experiment 6.3 > 6.1); at "
+                   "resolution 2 point 2 leads (5.62, 5.80)")
+def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
     _, _, v = ch_sweep
-    assert v[0, 0] > v[0, 1] > v[0, 2], v[0]
+    assert v[0, 0] > v[0, 1], v[0]
 
 
 @pytest.mark.slow
@@ -199,3 +224,53 @@ def test_calibration_command_never_overwrites_a_previous_result(tmp_path, capsys
     assert main(["table", "--out", str(old)]) == 2
     assert "exists and is not empty: a previous result is never overwritten" in capsys.readouterr().err
     assert (old / "result.json").read_text() == "{}"
+
+
+TRUTH = (1.0, 0.15)
+
+
+@pytest.fixture(scope="module")
+def synthetic_fit():
+    """L-BFGS on the small two-phase scene of calibration.synthetic, observables generated at
+    TRUTH, started 2x away in both C_d and C_h."""
+    from calibration.fit import fit
+    from calibration.model import theta_of
+    from calibration.synthetic import DebrisInWaterModel
+
+    model = DebrisInWaterModel.build()
+    target = jax.jit(model.observables)(theta_of(*TRUTH))
+    start = theta_of(2 * TRUTH[0], 2 * TRUTH[1])
+    return model, target, start, fit(model.observables, target, start, iterations=20, method="lbfgs", tol=1e-12,
+                                     progress=False)
+
+
+def test_synthetic_recovery_from_two_times_away(synthetic_fit):
+    """Both C_d and C_h recovered within 5% from a start at twice their values (measured: 1e-6,
+    15 L-BFGS iterations, 34 loss-and-gradient evaluations)."""
+    _, _, _, res = synthetic_fit
+    err = res.values / np.asarray(TRUTH) - 1
+    assert np.all(np.abs(err) < 0.05), (res.values, res.stopped)
+    assert res.history[0]["loss"] > 1e3 * res.loss      # it did move
+
+
+def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
+    """The gradient of the loss at the start (the fit's first evaluation, jax.value_and_grad
+    through the checkpointed simulate) against central differences at two step sizes: within 1%
+    (measured 1e-5). Steps of 3e-3 and more straddle small jumps of the observables (d spread /
+    d log C_h by differences: 0.064 at steps 3e-4 and 1e-3, 0.065 at 3e-3; d velocity / d log C_h:
+    0.024, 0.024, 0.014), see the calibration issue's note."""
+    from calibration.fit import loss_fn
+
+    model, target, start, res = synthetic_fit
+    g = np.asarray(res.history[0]["grad"])
+    loss = jax.jit(lambda th: loss_fn(model.observables, target)(th)[0])
+    for eps in (1e-3, 3e-4):
+        fd = np.array([(float(loss(start + eps * e)) - float(loss(start - eps * e))) / (2 * eps) for e in np.eye(2)])
+        np.testing.assert_allclose(g, fd, rtol=1e-2, err_msg=f"step {eps}")
+
+
+def test_fit_refuses_an_unknown_method():
+    from calibration.fit import fit
+
+    with pytest.raises(ValueError, match=r"method = 'sgd' is invalid: allowed adam \| lbfgs"):
+        fit(lambda th: th, np.zeros(2), np.zeros(2), method="sgd")
