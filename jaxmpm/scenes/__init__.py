@@ -21,7 +21,8 @@ BUILTINS = {
                              basic.vibrating_bar_state),
     "self_weight_column": Builtin(basic.self_weight_column, "1D soft column settling under its own weight (exact static stress; cell crossing)"),
     "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
-    "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; first version)"),
+    "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; partly validated)"),
+    "taylor_bar": Builtin(impact.taylor_bar, "OFHC copper rod on a rigid wall at 190 m/s (2D axisymmetric; Johnson & Cook 1983)"),
 }
 
 DEFAULT_SCENE = "elastic_impact"

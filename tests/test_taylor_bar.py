@@ -1,0 +1,69 @@
+"""Taylor impact of an OFHC copper rod on a rigid wall (built-in `taylor_bar`, 2D axisymmetric,
+J2 + Johnson-Cook). Reference: Johnson & Cook 1983 (7th Int. Symp. Ballistics), L0 = 25.4 mm,
+D0 = 7.62 mm at 190 m/s: measured final length 0.638 L0 = 16.2 mm and footprint diameter
+1.78 D0 = 13.6 mm (as tabulated with Zerilli & Armstrong, J. Appl. Phys. 61 (1987) 1816)."""
+import functools
+
+import jax
+import numpy as np
+import pytest
+
+import jaxmpm
+from jaxmpm.scenes.impact import taylor_measures
+
+L_MEASURED, D_MEASURED = 16.2e-3, 13.6e-3
+
+
+@functools.lru_cache(maxsize=4)
+def run(resolution):
+    scene = jaxmpm.load_scene("taylor_bar", resolution=resolution)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    final, _ = jaxmpm.simulate(scene, params, s0, progress=False)
+    return scene, s0, final
+
+
+def measured(scene, state):
+    """Length and footprint diameter with half a particle spacing added at each free face (the
+    particle centres lie that far inside the material's surface)."""
+    L, D = taylor_measures(scene, state)
+    half = 0.5 * scene.grid.h / scene.phases[0].ppc
+    return L + half, D + 2 * half
+
+
+def energy(s):
+    return float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
+
+
+def test_rod_comes_to_rest_on_the_frictionless_wall_conserving_energy():
+    """Resolution 0.5: the rigid slip wall does no work, so the kinetic energy becomes internal
+    energy (plastic work and heat) with kinetic + internal conserved (measured 0.04%); at 80 us
+    the rod is at rest (kinetic energy 0.9% of the initial) and shorter and wider than it was."""
+    scene, s0, final = run(0.5)
+    assert all(bool(jax.numpy.isfinite(a).all()) for a in jax.tree.leaves(final))
+    assert float(final.mass.sum()) == float(s0.mass.sum())
+    assert energy(final) == pytest.approx(energy(s0), rel=0.005)
+    assert float(jaxmpm.diagnostics.kinetic_energy(final)) < 0.02 * float(jaxmpm.diagnostics.kinetic_energy(s0))
+    (L0, D0), (L1, D1) = measured(scene, s0), measured(scene, final)
+    assert L1 < 0.8 * L0 and D1 > 1.5 * D0, (L0, L1, D0, D1)
+
+
+@pytest.mark.slow
+def test_final_shape_converges_in_resolution():
+    """Resolutions 0.5 and 1: final length within 1% (measured 17.31 and 17.18 mm), footprint
+    within 5% (14.30 and 14.57 mm)."""
+    (sa, _, fa), (sb, _, fb) = run(0.5), run(1.0)
+    (La, Da), (Lb, Db) = measured(sa, fa), measured(sb, fb)
+    print(f"taylor_bar: L_f = {La * 1e3:.2f}, {Lb * 1e3:.2f} mm; footprint {Da * 1e3:.2f}, {Db * 1e3:.2f} mm")
+    assert Lb == pytest.approx(La, rel=0.01)
+    assert Db == pytest.approx(Da, rel=0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 8): at resolution 1 the rod ends 17.18 mm long, 6.0% longer than "
+                   "Johnson & Cook's measured 16.2 mm (footprint 14.57 against 13.6 mm on a frictionless wall); "
+                   "without the strain-rate term (C = 0) it is 16.00 mm")
+def test_final_length_within_5_percent_of_the_experiment():
+    scene, _, final = run(1.0)
+    L, _ = measured(scene, final)
+    assert L == pytest.approx(L_MEASURED, rel=0.05)
