@@ -1,0 +1,137 @@
+"""Cost of a gradient through N steps: forward time, value-and-gradient time and peak memory,
+with nested checkpointing (`simulate(..., checkpoint=True)`) and without.
+
+Scene: the coarse debris cloud (resolution 0.75, two velocity fields, float64), a fixed time step
+of half the initial CFL step and t_end = N dt (the scene's grid grows with t_end). Loss: the
+mass-weighted mean axial position of the projectile at t_end, a function of theta = (log C_d,
+log C_h); the gradient is d loss / d theta (reverse mode). Peak memory: XLA's buffer assignment of
+the compiled program (arguments + outputs + temporaries of `CompiledMemoryStats`), deterministic
+and the same on any machine of the backend; times: wall seconds of one run after compilation. Runs without checkpointing whose
+program needs more than --max-gib are compiled (for their memory) but not run.
+
+Prints a table, writes benchmarks/results/grad_cost.csv and grad_cost.png (log-log).
+
+    python benchmarks/grad_cost.py [--steps 100,300,1000,3000,10000] [--max-gib 8]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import os
+import platform
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+
+def problem(n_steps):
+    import jax.numpy as jnp
+
+    import jaxmpm
+    from jaxmpm.step import cfl_time_step
+    probe = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+    p0 = jaxmpm.default_params(probe)
+    dt = 0.5 * float(cfl_time_step(probe, p0, jaxmpm.init_state(probe, p0)))
+    scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=n_steps * dt)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.init_state(scene, params)
+    sl = jaxmpm.state.phase_slices(scene)[0]
+
+    def loss(theta, checkpoint):
+        p = dataclasses.replace(params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
+        final, _ = jaxmpm.simulate(scene, p, state, t_end=scene.t_end, n_out=1, dt=dt, n_steps=n_steps,
+                                   checkpoint=checkpoint)
+        m = final.mass[sl]
+        return jnp.sum(m * final.x[sl, 1]) / jnp.sum(m)
+
+    return loss, state.x.shape[0], dt
+
+
+def program_bytes(compiled):
+    """Arguments + outputs + temporaries of XLA's buffer assignment (the CPU backend's
+    peak_memory_in_bytes does not count the temporaries of loops)."""
+    m = compiled.memory_analysis()
+    return m.temp_size_in_bytes + m.argument_size_in_bytes + m.output_size_in_bytes
+
+
+def measure(n_steps, checkpoint, max_bytes):
+    import jax.numpy as jnp
+
+    loss, n_particles, dt = problem(n_steps)
+    theta = jnp.log(jnp.array([1.0, 0.15]))
+    fwd = jax.jit(lambda th: loss(th, checkpoint))
+    vg = jax.jit(jax.value_and_grad(lambda th: loss(th, checkpoint)))
+    t0 = time.perf_counter()
+    c_fwd = fwd.lower(theta).compile()
+    c_vg = vg.lower(theta).compile()
+    compile_s = time.perf_counter() - t0
+    mem_fwd, mem_vg = program_bytes(c_fwd), program_bytes(c_vg)
+    row = dict(steps=n_steps, checkpoint=checkpoint, particles=n_particles, dt=dt, compile_s=round(compile_s, 2),
+               forward_peak_mib=mem_fwd / 2**20, gradient_peak_mib=mem_vg / 2**20,
+               forward_s=float("nan"), gradient_s=float("nan"), ratio=float("nan"), finite=None)
+    if mem_vg > max_bytes:
+        return row
+    jax.block_until_ready(c_fwd(theta))             # warm
+    t0 = time.perf_counter()
+    jax.block_until_ready(c_fwd(theta))
+    row["forward_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    value, grad = jax.block_until_ready(c_vg(theta))
+    row["gradient_s"] = time.perf_counter() - t0
+    row["ratio"] = row["gradient_s"] / row["forward_s"]
+    row["finite"] = bool(jnp.isfinite(value) and jnp.all(jnp.isfinite(grad)))
+    return row
+
+
+def plot(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ck, style in ((True, "o-"), (False, "s--")):
+        rs = [r for r in rows if r["checkpoint"] == ck]
+        n = [r["steps"] for r in rs]
+        label = "nested checkpointing" if ck else "no checkpointing"
+        axes[0].loglog(n, [r["gradient_peak_mib"] for r in rs], style, label=f"gradient, {label}")
+        axes[0].loglog(n, [r["forward_peak_mib"] for r in rs], style, alpha=0.4, label=f"forward, {label}")
+        axes[1].loglog(n, [r["forward_s"] for r in rs], style, alpha=0.4, label=f"forward, {label}")
+        axes[1].loglog(n, [r["gradient_s"] for r in rs], style, label=f"gradient, {label}")
+    axes[0].set_xlabel("steps N"); axes[0].set_ylabel("peak memory (MiB)"); axes[0].legend(fontsize="small")
+    axes[1].set_xlabel("steps N"); axes[1].set_ylabel("wall time (s)"); axes[1].legend(fontsize="small")
+    fig.suptitle("gradient through N steps of the coarse debris cloud (2 fields, float64)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", default="100,300,1000,3000,10000")
+    ap.add_argument("--max-gib", type=float, default=8.0, help="run only programs needing less (GiB)")
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    args = ap.parse_args()
+    steps = [int(s) for s in args.steps.split(",")]
+    rows = []
+    print(f"{jax.default_backend()} ({platform.processor() or platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}")
+    print(f"{'N':>6} {'ckpt':>5} {'fwd MiB':>9} {'grad MiB':>9} {'fwd s':>8} {'grad s':>8} {'ratio':>6}")
+    for n in steps:
+        for ck in (True, False):
+            r = measure(n, ck, args.max_gib * 2**30)
+            rows.append(r)
+            print(f"{n:>6} {str(ck):>5} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
+                  f"{r['forward_s']:>8.3f} {r['gradient_s']:>8.3f} {r['ratio']:>6.2f}", flush=True)
+    os.makedirs(args.out, exist_ok=True)
+    path = os.path.join(args.out, "grad_cost.csv")
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    png = os.path.join(args.out, "grad_cost.png")
+    plot(rows, png)
+    print(f"wrote {path}\nwrote {png}")
+
+
+if __name__ == "__main__":
+    main()
