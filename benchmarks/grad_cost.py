@@ -116,18 +116,18 @@ def main():
     rows = []
     print(f"{jax.default_backend()} ({platform.processor() or platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}")
     print(f"{'N':>6} {'ckpt':>5} {'fwd MiB':>9} {'grad MiB':>9} {'fwd s':>8} {'grad s':>8} {'ratio':>6}")
+    os.makedirs(args.out, exist_ok=True)
+    path = os.path.join(args.out, "grad_cost.csv")
     for n in steps:
         for ck in (True, False):
             r = measure(n, ck, args.max_gib * 2**30)
             rows.append(r)
             print(f"{n:>6} {str(ck):>5} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
                   f"{r['forward_s']:>8.3f} {r['gradient_s']:>8.3f} {r['ratio']:>6.2f}", flush=True)
-    os.makedirs(args.out, exist_ok=True)
-    path = os.path.join(args.out, "grad_cost.csv")
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+            with open(path, "w", newline="") as f:          # rewritten after each row: a long run keeps what it measured
+                w = csv.DictWriter(f, fieldnames=list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
     png = os.path.join(args.out, "grad_cost.png")
     plot(rows, png)
     print(f"wrote {path}\nwrote {png}")
