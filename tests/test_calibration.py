@@ -247,6 +247,7 @@ def synthetic_fit():
                                      progress=False)
 
 
+@pytest.mark.slow
 def test_synthetic_recovery_from_two_times_away(synthetic_fit):
     """Both C_d and C_h recovered within 5% from a start at twice their values (measured: 1e-6,
     15 L-BFGS iterations, 34 loss-and-gradient evaluations)."""
@@ -256,6 +257,7 @@ def test_synthetic_recovery_from_two_times_away(synthetic_fit):
     assert res.history[0]["loss"] > 1e3 * res.loss      # it did move
 
 
+@pytest.mark.slow
 def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
     """The gradient of the loss at the start (the fit's first evaluation, jax.value_and_grad
     through the checkpointed simulate) against central differences at two step sizes: within 1%
