@@ -27,7 +27,7 @@ def fragmentation_gate(lay, state):
     inside the shock; the fragmented part then relaxes toward the ambient pressure (E8) and pushes
     with alpha p only, so the shock died in the plate. On the debris cloud at resolution 1 (one
     field, C_h = 0.02) points 1, 2, 4 came out at 5.33, 5.33, 6.10 km/s with 'plastic' against
-    6.07, 5.95, 4.83 with 'failed' and 5.97, 6.00, 4.87 with no closure (experiment 6.3, 6.1, 3.9)."""
+    5.96, 6.12, 4.88 with 'failed' and 5.97, 6.00, 4.87 with no closure (experiment 6.3, 6.1, 3.9)."""
     scene = lay.scene
     if scene.fragmentation == "plastic":
         return jnp.ones_like(state.eps_ps)
