@@ -13,7 +13,8 @@ from jaxmpm.batch import ensemble as ensemble
 from jaxmpm import io as io
 from jaxmpm.materials import Material as Material
 from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params
-from jaxmpm.scene import Boundary as Boundary, Box as Box, Grid as Grid, Phase as Phase, Scene as Scene, Sphere as Sphere
+from jaxmpm.scene import (Boundary as Boundary, Box as Box, Difference as Difference, Grid as Grid, Phase as Phase,
+                          Scene as Scene, Sphere as Sphere)
 from jaxmpm.scenefile import load_scene as load_scene, scene_from_dict as scene_from_dict, scene_to_toml as scene_to_toml
 from jaxmpm.simulate import cfl_limit as cfl_limit, plan_steps as plan_steps, simulate as simulate
 from jaxmpm.state import State as State, init_state as init_state

@@ -101,13 +101,50 @@ class Sphere:
         return {"type": "sphere", "center": list(self.center), "radius": self.radius}
 
 
-GEOMETRIES = {"box": Box, "sphere": Sphere}
+@dataclass(frozen=True)
+class Difference:
+    """The points of `base` (Box or Sphere) outside every geometry in `minus` (m): a fluid around a
+    body, a plate with a hole. Particles are sampled on `base`'s cells."""
+
+    base: Any
+    minus: tuple = ()
+
+    def __post_init__(self):
+        if not isinstance(self.base, (Box, Sphere)):
+            _fail("geometry.base", self.base, "a Box or Sphere")
+        minus = (self.minus,) if isinstance(self.minus, (Box, Sphere, Difference)) else tuple(self.minus)
+        for g in minus:
+            if not isinstance(g, (Box, Sphere, Difference)):
+                _fail("geometry.minus", g, "a list of Box, Sphere or Difference")
+            if len(g.lo) != len(self.base.lo):
+                _fail("geometry.minus", g.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
+        object.__setattr__(self, "minus", minus)
+
+    @property
+    def lo(self):
+        return self.base.lo
+
+    @property
+    def hi(self):
+        return self.base.hi
+
+    def contains(self, x):
+        inside = self.base.contains(x)
+        for g in self.minus:
+            inside = inside & ~g.contains(x)
+        return inside
+
+    def to_dict(self):
+        return {"type": "difference", "base": self.base.to_dict(), "minus": [g.to_dict() for g in self.minus]}
+
+
+GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
 
 
 def geometry_from_dict(d: Mapping, where: str):
     """Box or Sphere from its scene-file table; ValueError naming `where` on bad input."""
     if not isinstance(d, Mapping):
-        _fail(where, d, "a table with key 'type' (box | sphere)")
+        _fail(where, d, "a table with key 'type' (box | sphere | difference)")
     d = dict(d)
     kind = d.pop("type", None)
     if not isinstance(kind, str) or kind not in GEOMETRIES:
@@ -120,6 +157,10 @@ def geometry_from_dict(d: Mapping, where: str):
     missing = set(names) - set(d)
     if missing:
         raise ValueError(f"{where}.{sorted(missing)[0]} is missing: a {kind} needs {names}")
+    if cls is Difference:
+        d["base"] = geometry_from_dict(d["base"], f"{where}.base")
+        minus = d["minus"] if isinstance(d["minus"], (list, tuple)) else [d["minus"]]
+        d["minus"] = tuple(geometry_from_dict(g, f"{where}.minus[{i}]") for i, g in enumerate(minus))
     try:
         return cls(**d)
     except ValueError as e:
@@ -186,7 +227,7 @@ class Phase:
     """One material (phase) of the scene.
 
     name: unique label. material: a library key (see `jaxmpm.materials.known_keys()`), a key of the
-    scene's own `materials`, or a `Material`. geometry: Box or Sphere. velocity: initial velocity
+    scene's own `materials`, or a `Material`. geometry: Box, Sphere or Difference. velocity: initial velocity
     (m/s). field: index of the velocity field the phase moves with (phases in one field share the
     grid velocity). ppc: particles per cell per axis. fraction: initial volume fraction of the phase
     where it is (in (0, 1]; < 1 for interpenetrating mixtures): scales particle volume and mass.
@@ -204,7 +245,7 @@ class Phase:
         if not isinstance(self.name, str) or not self.name.isidentifier():
             _fail("phase.name", self.name, "an identifier (letters, digits, underscore)")
         if not isinstance(self.geometry, tuple(GEOMETRIES.values())):
-            _fail(f"phase.{self.name}.geometry", self.geometry, "Box or Sphere")
+            _fail(f"phase.{self.name}.geometry", self.geometry, "Box, Sphere or Difference")
         dim = len(self.geometry.lo)
         v = (0.0,) * dim if self.velocity is None else self.velocity
         object.__setattr__(self, "velocity", _floats(f"phase.{self.name}.velocity", v, dim))

@@ -24,6 +24,9 @@ never ignored; every error is a ValueError naming the field (and the line, for m
     material = "soft"
     velocity = [1.0, 0.0]
     geometry = { type = "box", lo = [0.1, 0.0], hi = [0.2, 0.1] }
+
+A geometry is { type = "box", lo, hi }, { type = "sphere", center, radius } or
+{ type = "difference", base = <box or sphere>, minus = [<geometries>] } (the base outside the others).
 """
 from __future__ import annotations
 

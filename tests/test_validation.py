@@ -183,3 +183,24 @@ def test_fragmentation_option_round_trips_and_bad_values_are_named():
         dataclasses.replace(scene, fragmentation="all")
     with pytest.raises(ValueError, match=r"effects\.fragmentation = 3 is invalid"):
         jaxmpm.scenefile.scene_from_toml(SCENE_TOML + "\n[effects]\nc_h = 0.1\nfragmentation = 3\n")
+
+
+def test_difference_geometry_samples_around_the_hole_round_trips_and_names_bad_parts():
+    """A fluid around a body: the base's particles outside the holes; the TOML text gives the scene
+    back; a bad part is named with its path."""
+    from jaxmpm.scene import Difference, Sphere
+    from jaxmpm.state import sample_phase
+
+    hole = Sphere((0.5, 0.5), 0.2)
+    around = Difference(Box((0.0, 0.0), (1.0, 1.0)), (hole, Box((0.0, 0.0), (0.2, 0.2))))
+    scene = _scene(phases=(Phase("body", "m", hole), Phase("fluid", "m", around, field=1)))
+    body, fluid = (sample_phase(scene.grid, p) for p in scene.phases)
+    full = sample_phase(scene.grid, Phase("all", "m", Box((0.0, 0.0), (1.0, 1.0))))
+    assert len(body) > 0 and len(fluid) + len(body) + 16 == len(full)       # the corner box holds 4 x 4 points
+    assert not np.any(np.sum((fluid - 0.5) ** 2, 1) < 0.2**2)
+    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+    text = 'type = "cone"'.join(jaxmpm.scene_to_toml(scene).rsplit('type = "sphere"', 1))   # the hole's
+    with pytest.raises(ValueError, match=r"phase\.fluid\.geometry\.minus\[0\]\.type = 'cone' is invalid: allowed box \| sphere \| difference"):
+        jaxmpm.scenefile.scene_from_toml(text)
+    with pytest.raises(ValueError, match=r"geometry\.base = .* allowed a Box or Sphere"):
+        Difference("box", ())
