@@ -14,8 +14,10 @@ from jaxmpm.materials.models import MatPoint, model_of, split_model, MODELS
 
 def fails(model_name) -> bool:
     """Whether a model kind has a failure part (a hydrocode composite with spall, Johnson-Cook
-    failure, ...)."""
-    return model_name not in MODELS and bool(split_model(model_name)[2])
+    failure, ...) or is a one-piece kind that sets damage (maxwell_brittle)."""
+    if model_name in MODELS:
+        return MODELS[model_name].can_fail
+    return bool(split_model(model_name)[2])
 
 
 def fragmentation_gate(lay, state):

@@ -98,6 +98,34 @@ def test_maxwell_stress_relaxes_as_exp_minus_t_over_tau():
     assert abs(sxx[-1]) < 1e-2 * abs(sxx[k0])            # 5 tau later the stress is gone
 
 
+def test_brittle_maxwell_is_maxwell_until_it_fails_then_carries_no_tension_and_relaxes_its_shear():
+    """Uniaxial-strain stretch at a constant rate: identical to `maxwell` while the largest
+    principal stress is below sigma_t; on the step it would pass sigma_t the damage becomes 1 for
+    good and from that step on the pressure is floored at 0 (no tension) and the deviator decays as
+    exp(-t / tau_failed)."""
+    E, nu, tau, sigma_t, tau_f = 70e9, 0.22, 1.0, 100e6, 1e-6
+    brittle = jaxmpm.Material.make("glass", "maxwell_brittle", rho0=2500.0, E=E, nu=nu, tau=tau, sigma_t=sigma_t,
+                                   tau_failed=tau_f)
+    plain = jaxmpm.Material.make("glass", "maxwell", rho0=2500.0, E=E, nu=nu, tau=tau)
+    rate, stop = 1.0e3, 3e-6                            # 1e-3 strain in 1 us: 2e8 Pa; held after `stop`
+    L_of_t = lambda t: jnp.where(t < stop, rate, 0.0) * jnp.diag(jnp.array([1.0, 0.0, 0.0]))
+    t, hb = drive(brittle, L_of_t, 8e-6, 800)
+    _, hm = drive(plain, L_of_t, 8e-6, 800)
+    sxx_m = np.array([h.stress[0, 0] for h in hm])
+    damage = np.array([h.damage for h in hb])
+    k_fail = int(np.argmax(damage >= 1.0))
+    assert 0 < k_fail and sxx_m[k_fail] > sigma_t >= sxx_m[k_fail - 1]              # fails on the step it passes
+    for k in range(k_fail):
+        np.testing.assert_allclose(hb[k].stress, hm[k].stress, rtol=1e-12, atol=1e-6)
+    assert np.all(damage[k_fail:] == 1.0)
+    pressure = np.array([-np.trace(h.stress) / 3 for h in hb])
+    assert np.all(pressure[k_fail:] >= -1e-6)                                         # no tension after failure
+    held = t > stop + 1e-9
+    dev = np.array([h.stress[0, 0] - h.stress[1, 1] for h in hb])
+    k0 = int(np.argmax(held))
+    np.testing.assert_allclose(dev[held], dev[k0] * np.exp(-(t[held] - t[k0]) / tau_f), rtol=1e-6, atol=1e-9 * abs(dev[k0]))
+
+
 def test_fibre_turns_with_the_material():
     """Rotate a fibre-along-x particle by 90 degrees (pure spin), then stretch along y: the response
     is the fibre's stiffness C11, not the transverse C22."""
@@ -302,6 +330,7 @@ geometry = { type = "box", lo = [0.0], hi = [0.02] }
 
 @pytest.mark.parametrize("model, constants, field, allowed", [
     ("maxwell", dict(rho0=1.0, E=1.0, nu=0.2, tau=-1.0), "tau", r"\(0, inf\) s"),
+    ("maxwell_brittle", dict(rho0=1.0, E=1.0, nu=0.2, tau=1.0, sigma_t=-1.0, tau_failed=1.0), "sigma_t", r"\(0, inf\) Pa"),
     ("linear+johnson_cook", dict(rho0=1.0, K=1.0, G=1.0, A=1.0, B=1.0, n=1.5, C=0.0, epsdot0=1.0), "n", r"\(0, 1\]"),
     ("linear+johnson_cook_thermal", dict(rho0=1.0, K=1.0, G=1.0, A=1.0, B=1.0, n=0.5, C=0.0, epsdot0=1.0, m=-1.0,
                                          T_room=300.0, T_melt=900.0, cp=500.0), "m", r"\(0, 10\]"),

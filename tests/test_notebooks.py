@@ -10,7 +10,8 @@ nbclient = pytest.importorskip("nbclient")
 NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
 
 
-SLOW = {"debris_cloud", "calibration", "rod_penetration"}          # run with -m slow (the default run stays under 15 minutes on 2 cores)
+# run with -m slow (the default run stays under 15 minutes on 2 cores)
+SLOW = {"debris_cloud", "calibration", "rod_penetration", "taylor_brittle", "sandwich_target"}
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p for p in NOTEBOOKS],

@@ -21,6 +21,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 _P = (0.0, math.inf, False, False)
 CONSTANTS = {"rho0": _P + ("kg/m^3",), "E1": _P + ("Pa",), "E2": _P + ("Pa",),
@@ -28,6 +29,7 @@ CONSTANTS = {"rho0": _P + ("kg/m^3",), "E1": _P + ("Pa",), "E2": _P + ("Pa",),
              "fibre_theta": (-2 * math.pi, 2 * math.pi, True, True, "rad"),
              "fibre_phi": (-0.5 * math.pi, 0.5 * math.pi, True, True, "rad")}
 _VOIGT = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+_VOIGT_INDEX = np.array([[_VOIGT.index((min(a, b), max(a, b))) for b in range(3)] for a in range(3)])   # (3, 3)
 
 
 def voigt_stiffness(c):
@@ -55,12 +57,7 @@ def fibre_frame(c):
 def stiffness_tensor(c, dim):
     """C_ijkl in the reference frame, restricted to the first `dim` axes. (d, d, d, d) Pa."""
     Cv, _ = voigt_stiffness(c)
-    C = jnp.zeros((3, 3, 3, 3), Cv.dtype)
-    for I, (i, j) in enumerate(_VOIGT):
-        for J, (k, l) in enumerate(_VOIGT):
-            for a, b in ((i, j), (j, i)):
-                for e, f in ((k, l), (l, k)):
-                    C = C.at[a, b, e, f].set(Cv[I, J])
+    C = Cv[_VOIGT_INDEX[:, :, None, None], _VOIGT_INDEX[None, None, :, :]]      # one gather: C_abef = Cv[V(ab), V(ef)]
     Q = fibre_frame(c)
     C = jnp.einsum("ia,jb,kc,ld,abcd->ijkl", Q, Q, Q, Q, C)
     return C[:dim, :dim, :dim, :dim]

@@ -3,7 +3,7 @@ wave speeds and the initial state. Each kind's physics lives in its own module.
 
 Two families:
   * one-piece kinds on the total stress: linear_elastic, hypoelastic, linear_fluid (elastic.py),
-    maxwell (viscoelastic.py), transversely_isotropic (anisotropic.py);
+    maxwell and maxwell_brittle (viscoelastic.py), transversely_isotropic (anisotropic.py);
   * hydrocode compositions "eos[+strength][+failure...]" (hydro.py), e.g.
     "mie_gruneisen+johnson_cook_thermal+spall": the pressure from an equation of state p(rho, e)
     with the internal energy equation solved with it, a deviatoric strength model, failure criteria.
@@ -62,6 +62,7 @@ class Model:
     initial(c) -> (p0, e0): pressure (Pa) and specific internal energy (J/kg) at rest at rho0.
     strain_energy(c, F) -> (N,) elastic energy per reference volume (J/m^3), where defined.
     hydro: whether the model is a hydrocode composition (its stress = deviator - pressure I).
+    can_fail: whether the update sets damage (one-piece kinds; a composition fails through its parts).
     """
 
     constants: dict
@@ -71,6 +72,7 @@ class Model:
     initial: Callable = lambda c: (0.0, 0.0)
     strain_energy: Callable | None = None
     hydro: bool = False
+    can_fail: bool = False
 
 
 _POS = (0.0, math.inf, False, False)
@@ -103,6 +105,9 @@ MODELS = {
                           _total_stress(elastic.linear_fluid_update), elastic.fluid_wave_speed, elastic.fluid_bulk_modulus),
     "maxwell": Model({**_SOLID, "tau": _POS + ("s",)}, _total_stress(viscoelastic.maxwell_update),
                      elastic.solid_wave_speed, elastic.solid_bulk_modulus),
+    "maxwell_brittle": Model({**_SOLID, "tau": _POS + ("s",), "sigma_t": _POS + ("Pa",), "tau_failed": _POS + ("s",)},
+                             viscoelastic.brittle_maxwell_update, elastic.solid_wave_speed, elastic.solid_bulk_modulus,
+                             can_fail=True),
     "transversely_isotropic": Model(anisotropic.CONSTANTS, _total_stress(anisotropic.update),
                                     anisotropic.wave_speed, anisotropic.bulk_modulus),
 }

@@ -23,6 +23,9 @@ BUILTINS = {
     "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
     "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; partly validated)"),
     "taylor_bar": Builtin(impact.taylor_bar, "OFHC copper rod on a rigid wall at 190 m/s (2D axisymmetric; Johnson & Cook 1983)"),
+    "taylor_brittle": Builtin(impact.taylor_brittle, "brittle (Maxwell, damage) rod on a rigid wall at 20 m/s: cracks (2D axisymmetric)"),
+    "sandwich_target": Builtin(penetration.sandwich_target,
+                               "tungsten rod into a steel / CFRP laminate / steel sandwich at 800 m/s (2D axisymmetric)"),
     "rod_penetration": Builtin(penetration.rod_penetration,
                                "tungsten-alloy L/D = 10 rod into semi-infinite steel at 2 km/s (2D axisymmetric; Tate check)"),
 }
