@@ -11,7 +11,8 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipy
 
 
 # run with -m slow (the default run stays under 15 minutes on 2 cores)
-SLOW = {"debris_cloud", "calibration", "rod_penetration", "taylor_brittle", "sandwich_target"}
+SLOW = {"debris_cloud", "calibration", "materials", "projectile_concrete", "rod_penetration", "sandwich_target",
+        "taylor_brittle"}
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p for p in NOTEBOOKS],

@@ -24,6 +24,8 @@ BUILTINS = {
     "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; partly validated)"),
     "taylor_bar": Builtin(impact.taylor_bar, "OFHC copper rod on a rigid wall at 190 m/s (2D axisymmetric; Johnson & Cook 1983)"),
     "taylor_brittle": Builtin(impact.taylor_brittle, "brittle (Maxwell, damage) rod on a rigid wall at 20 m/s: cracks (2D axisymmetric)"),
+    "projectile_concrete": Builtin(penetration.projectile_concrete,
+                                   "steel projectile through water (or air: --opt fluid=air) into concrete at 500 m/s (2D axisymmetric)"),
     "sandwich_target": Builtin(penetration.sandwich_target,
                                "tungsten rod into a steel / CFRP laminate / steel sandwich at 800 m/s (2D axisymmetric)"),
     "rod_penetration": Builtin(penetration.rod_penetration,

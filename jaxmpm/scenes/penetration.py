@@ -243,3 +243,69 @@ def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int =
         grid=grid, axisymmetric=True,
         materials=(library_material("tungsten_wha"), library_material("steel_4340"), lam),
         phases=phases, drag=drag if fields > 1 else None, t_end=t_end, n_out=10, cfl=0.3)
+
+
+FLUIDS = ("air", "water")
+
+
+def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: float = 500.0, drag: float = 1.0,
+                        standoff: float = 10e-3, t_end: float = 60e-6) -> Scene:
+    """A steel projectile through a fluid layer into a concrete block: once in air, once in water
+    (the seed's two pictures of fluid-structure interaction).
+
+    Geometry (2D axisymmetric, r >= 0, z along the flight): a steel_4340 cylinder (diameter 10 mm,
+    length 30 mm, flat nose) `standoff` (10 mm) above the block's face z = 0, moving along -z at
+    `speed` (500 m/s); the concrete block fills r in [0, 40 mm], z in [-60 mm, 0]; `fluid` ('air'
+    at 1 atm or 'water') fills the rest of the grid above the block. Cells of 1 mm / resolution,
+    2 x 2 particles per cell; slip walls on every face but the axis (they hold the fluid).
+    Phases: `projectile` (steel_4340: Mie-Grueneisen, Johnson-Cook, spall, Johnson-Cook failure),
+    `block` (concrete: linear EOS, Drucker-Prager strength, spall) in velocity field 0 and the
+    fluid (library `air`, ideal gas, or `water`, stiffened gas) in field 1. The fluid acts on the
+    solids through the exchange drag (E3, C_d = `drag`) only: the common-pressure interface forces
+    are off (with them the stress of the loaded solids drove the light fluid beside them to tens of
+    km/s: rod_penetration's docstring). Effects: artificial viscosity (0.5, 2.0).
+    Measures (`projectile_speed`): the projectile's mean axial speed against time, and the depth
+    of its nose below the block's face.
+
+    Status: runs; the seed shows pictures, not numbers. Measured (float64, resolution 0.6, 6144
+    particles, 60 us): in water the projectile reaches the block at about 450 m/s and ends at
+    234 m/s, 10.8 mm deep; in air at 500 m/s, ending at 258 m/s, 12.2 mm deep. The water's drag on
+    the way (500 -> 451 m/s over 10 mm) is about 6 times a flat-nosed body's Newtonian drag
+    (1/2 rho v^2 C_D A with C_D = 0.8: 8.5 m/s): the exchange drag acts wherever projectile and
+    water share a node, along the sides too, not only on the nose.
+    """
+    if fluid not in FLUIDS:
+        raise ValueError(f"projectile_concrete: fluid = {fluid!r} is invalid: allowed {' | '.join(FLUIDS)}")
+    for name, value in (("resolution", resolution), ("speed", speed), ("drag", drag), ("standoff", standoff),
+                        ("t_end", t_end)):
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf):
+            raise ValueError(f"projectile_concrete: {name} = {value!r} is invalid: allowed a finite number > 0")
+    h = 1e-3 / resolution
+    if 5e-3 / h < 3 - 1e-9:
+        raise ValueError(f"projectile_concrete: resolution = {resolution!r} gives {5e-3 / h:.2f} cells across the "
+                         "projectile's radius: allowed >= 3 cells, i.e. resolution >= 0.6")
+    radius, depth, p_d, p_l = 40e-3, 60e-3, 10e-3, 30e-3
+    n_r = int(round(radius / h))
+    n_below = int(round(depth / h))
+    n_above = int(math.ceil((standoff + p_l) / h)) + 4
+    grid = Grid(cells=(n_r, n_below + n_above), h=h, origin=(0.0, -n_below * h))
+    proj_box = Box((0.0, standoff), (p_d / 2, standoff + p_l))
+    phases = (Phase("projectile", "steel_4340", proj_box, velocity=(0.0, -speed), field=0),
+              Phase("block", "concrete", Box((0.0, -n_below * h), (n_r * h, 0.0)), field=0),
+              Phase(fluid, fluid, Difference(Box((0.0, 0.0), (n_r * h, n_above * h)), (proj_box,)), field=1))
+    walls = (("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))
+    return Scene(
+        name="projectile_concrete", description=f"steel projectile through {fluid} into concrete (2D axisymmetric)",
+        grid=grid, axisymmetric=True, materials=tuple(library_material(k) for k in ("steel_4340", "concrete", fluid)),
+        boundary=Boundary(faces=walls), phases=phases, drag=drag, interface_forces=False,
+        artificial_viscosity=(0.5, 2.0), t_end=t_end, n_out=12, cfl=0.3)
+
+
+def projectile_speed(scene, history) -> dict:
+    """Arrays t (s), speed (m/s, the projectile's mass-weighted mean of -v_z) and nose depth (m,
+    below the block's face; negative above it) at every output of a projectile_concrete history."""
+    from jaxmpm.state import phase_slices
+
+    sl = phase_slices(scene)[0]
+    m, vz, z = (np.asarray(a)[:, sl] for a in (history.mass, history.v[..., 1], history.x[..., 1]))
+    return {"t": np.asarray(history.t), "speed": -(m * vz).sum(1) / m.sum(1), "depth": -z.min(1)}
