@@ -1,0 +1,236 @@
+"""What accuracy costs in time: error against wall time on two problems with exact solutions.
+
+Problems:
+  bar   the vibrating bar of PHYSICS section 4 (Bardenhagen 2002; built-in `vibrating_bar`) at
+        v0 = 0.1 m/s, where particles cross cells, over one period (10 s): RMS displacement error
+        against the exact u(X, t), relative to the amplitude v0 / omega.
+  sod   Sod's shock tube (rho, p = 1, 1 | 0.125, 0.1, gamma = 1.4, artificial viscosity 0.5, 2.0) at
+        t = 0.2: volume-weighted L1 density error relative to the exact Riemann solution.
+Settings: shape function (linear MPM, DDMP, quadratic B-spline with the musl update and with APIC),
+cells, particles per cell per axis (2 or 4 on the bar; Sod has 8 per cell on the left and 1 on the
+right, equal particle masses), float32 / float64; CFL 0.1 (bar) and 0.3 (sod).
+The quadratic B-spline needs half a cell between the particles and the grid's edge: its bar has one
+more cell before x = 0 and holds the two first node layers fixed (the end at x = 0 is then fixed as
+for the hat functions); Sod is run with hat functions only (its gas fills the tube wall to wall).
+
+Wall time: each configuration is compiled and run once, then the median of --repeats further runs
+from the same initial state (`jaxmpm.simulate`'s host driver, no progress bar) is taken. All rows
+run in this one process, one after another; the numbers to compare are ratios within one run.
+
+Output: a CSV (--out, default benchmarks/results/accuracy_vs_time.csv) with problem, shape, cells,
+ppc, dtype, steps, particles, wall_s, error; a PNG next to it with error against wall time per
+problem and the Pareto front; printed: the front, and DDMP's error against linear MPM's at equal wall
+time (linear MPM's smallest error among its runs that took no longer than DDMP's run).
+
+Run:  python benchmarks/accuracy_vs_time.py                # both problems, about 10 minutes on 2 cores
+      python benchmarks/accuracy_vs_time.py --quick        # fewer rows, 2 minutes
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import datetime
+import math
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp   # noqa: E402
+import numpy as np        # noqa: E402
+
+import jaxmpm             # noqa: E402
+from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene   # noqa: E402
+from jaxmpm.scenes import initial_state                        # noqa: E402
+from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar      # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+from riemann import sample   # noqa: E402  (exact Riemann solution, shared with the tests)
+
+C_BAR = 10.0
+BETA = math.pi / (2 * BAR_LENGTH)
+OMEGA = BETA * C_BAR
+PERIOD = 2 * math.pi / OMEGA
+V0 = 0.1
+
+SHAPES = {"linear": ("linear", "musl"), "ddmp": ("ddmp", "musl"), "bspline2": ("bspline2", "musl"),
+          "bspline2-apic": ("bspline2", "apic")}
+
+
+def _cast(tree, dtype):
+    return jax.tree.map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, tree)
+
+
+def bar_scene(shape, cells, ppc):
+    kind, transfer = SHAPES[shape]
+    scene = vibrating_bar(cells=cells, v0=V0, shape="linear" if kind == "bspline2" else kind, cfl=0.1, ppc=ppc)
+    if kind == "bspline2":
+        h = scene.grid.h
+        scene = dataclasses.replace(scene, shape=kind, grid=Grid(cells=(scene.grid.cells[0] + 1,), h=h, origin=(-h,)),
+                                    boundary=Boundary(faces=(("x_lo", "fixed"),), layers=2))
+    return dataclasses.replace(scene, transfer=transfer)
+
+
+def bar_error(scene, s0, final):
+    X = np.asarray(s0.x[:, 0], float)
+    u = np.asarray(final.x[:, 0], float) - X
+    exact = V0 / OMEGA * math.sin(OMEGA * float(final.t)) * np.sin(BETA * X)
+    return float(np.sqrt(np.mean((u - exact) ** 2)) / (V0 / OMEGA))
+
+
+def sod_scene(shape, cells, ppc):
+    left = jaxmpm.Material.make("left", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0)
+    right = jaxmpm.Material.make("right", "ideal_gas", rho0=0.125, gamma=1.4, p0=0.1)
+    kind, transfer = SHAPES[shape]
+    return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), materials=(left, right), shape=kind, transfer=transfer,
+                 phases=(Phase("left", "left", Box((0.0,), (0.5,)), ppc=8),       # equal particle masses
+                         Phase("right", "right", Box((0.5,), (1.0,)), ppc=1)),
+                 artificial_viscosity=(0.5, 2.0), cfl=0.3, t_end=0.2, n_out=1,
+                 boundary=Boundary(faces=(("x_lo", "slip"), ("x_hi", "slip"))))
+
+
+def sod_error(scene, s0, final):
+    x = np.asarray(final.x[:, 0], float)
+    V = np.asarray(final.volume, float)
+    rho = np.asarray(final.mass / final.volume, float)
+    exact = sample(x, float(final.t), 0.5, (1.0, 0.0, 1.0), (0.125, 0.0, 0.1), 1.4)[0]
+    return float(np.sum(V * np.abs(rho - exact)) / np.sum(V * exact))
+
+
+PROBLEMS = {"bar": (bar_scene, bar_error, PERIOD), "sod": (sod_scene, sod_error, 0.2)}
+
+
+def measure(problem, shape, cells, ppc, dtype, repeats):
+    build, error, t_end = PROBLEMS[problem]
+    scene = build(shape, cells, ppc)
+    params = jaxmpm.default_params(scene)
+    s0 = initial_state(scene, params)
+    if dtype == "float32":
+        params, s0 = _cast(params, jnp.float32), _cast(s0, jnp.float32)
+    final, _ = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=1, progress=False)   # compiles
+    jax.block_until_ready(final)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        final, _ = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=1, progress=False)
+        jax.block_until_ready(final)
+        times.append(time.perf_counter() - t0)
+    finite = all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(final))
+    err = error(scene, s0, final) if finite else float("nan")
+    from jaxmpm.step import cfl_time_step
+
+    dt = float(cfl_time_step(scene, params, s0))                 # the first step (at the scene's CFL)
+    return {"problem": problem, "shape": shape, "cells": cells, "ppc": ppc, "dtype": dtype,
+            "steps": int(math.ceil(t_end / dt)), "particles": int(s0.x.shape[0]),
+            "wall_s": statistics.median(times), "error": err}
+
+
+def rows_to_run(quick):
+    cells_bar = [25, 50, 100, 200] if quick else [25, 50, 100, 200, 400]
+    cells_sod = [100, 200, 400] if quick else [100, 200, 400, 800, 1600]
+    out = []
+    for shape in ("linear", "ddmp", "bspline2", "bspline2-apic"):
+        for cells in cells_bar:
+            out.append(("bar", shape, cells, 2, "float64"))
+    for shape in ("linear", "ddmp"):
+        for cells in cells_bar[1:3]:
+            out.append(("bar", shape, cells, 4, "float64"))
+            out.append(("bar", shape, cells, 2, "float32"))
+    for shape in ("linear", "ddmp"):
+        for cells in cells_sod:
+            out.append(("sod", shape, cells, 2, "float64"))
+        out.append(("sod", shape, cells_sod[1], 2, "float32"))
+    return out
+
+
+def pareto(rows):
+    """Rows not beaten in both wall time and error by another row."""
+    ok = [r for r in rows if math.isfinite(r["error"])]
+    return sorted([r for r in ok if not any(o["wall_s"] <= r["wall_s"] and o["error"] < r["error"] for o in ok
+                                            if o is not r)], key=lambda r: r["wall_s"])
+
+
+def best_error_within(rows, t):
+    """The smallest error among `rows` that ran in at most wall time t (None if none did): what
+    that method buys with t seconds."""
+    errs = [r["error"] for r in rows if r["wall_s"] <= t and math.isfinite(r["error"])]
+    return min(errs) if errs else None
+
+
+def plot(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    problems = sorted({r["problem"] for r in rows})
+    fig, axes = plt.subplots(1, len(problems), figsize=(6.5 * len(problems), 5), squeeze=False)
+    markers = {"float64": "o", "float32": "s"}
+    for ax, prob in zip(axes[0], problems):
+        sub = [r for r in rows if r["problem"] == prob and math.isfinite(r["error"])]
+        for k, shape in enumerate(SHAPES):
+            for ppc in (2, 4):
+                for dt, mk in markers.items():
+                    pts = sorted([r for r in sub if r["shape"] == shape and r["ppc"] == ppc and r["dtype"] == dt],
+                                 key=lambda r: r["cells"])
+                    if pts:
+                        ax.plot([r["wall_s"] for r in pts], [r["error"] for r in pts], marker=mk,
+                                ls="-" if ppc == 2 and dt == "float64" else "none", color=f"C{k}",
+                                mfc="none" if ppc == 4 else None,
+                                label=f"{shape}, ppc {ppc}, {dt}")
+        front = pareto(sub)
+        ax.plot([r["wall_s"] for r in front], [r["error"] for r in front], "k:", lw=1, label="Pareto front")
+        ax.set_xscale("log"); ax.set_yscale("log")
+        ax.set_xlabel("wall time (s)"); ax.set_ylabel("relative error")
+        ax.set_title({"bar": "vibrating bar, v0 = 0.1 m/s, one period", "sod": "Sod shock tube, t = 0.2"}[prob])
+        ax.legend(fontsize="x-small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for spec in rows_to_run(args.quick):
+        r = measure(*spec, repeats=args.repeats)
+        rows.append(r)
+        print(f"{r['problem']:4s} {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: "
+              f"{r['particles']:5d} particles, {r['steps']:6d} steps, {r['wall_s']:8.3f} s, error {r['error']:.3e}",
+              flush=True)
+        with open(out, "w", newline="") as f:
+            f.write(f"# jaxmpm accuracy_vs_time, {datetime.date.today()}, jax {jax.__version__}, "
+                    f"{jax.devices()[0].platform}, {platform.processor() or platform.machine()}\n")
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    png = out.with_suffix(".png")
+    plot(rows, png)
+    for prob in ("bar", "sod"):
+        print(f"\nPareto front, {prob}:")
+        for r in pareto([r for r in rows if r["problem"] == prob]):
+            print(f"  {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, "
+                  f"error {r['error']:.3e}")
+    for prob in ("bar", "sod"):
+        lin = [r for r in rows if r["problem"] == prob and r["shape"] == "linear"]
+        print(f"\n{prob}, DDMP against linear MPM at equal wall time (linear's best error within DDMP's time):")
+        for r in sorted([r for r in rows if r["problem"] == prob and r["shape"] == "ddmp"], key=lambda r: r["wall_s"]):
+            e_lin = best_error_within(lin, r["wall_s"])
+            ratio = "no linear run that fast" if e_lin is None else f"linear {e_lin:.3e}, ratio {e_lin / r['error']:.1f}x"
+            print(f"  ddmp cells {r['cells']:4d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, error "
+                  f"{r['error']:.3e}; {ratio}")
+    print(f"\nwrote {out} and {png}")
+
+
+if __name__ == "__main__":
+    main()
