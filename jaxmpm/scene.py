@@ -310,7 +310,9 @@ class Scene:
       drag: exchange drag coefficient C_d of (E3) between velocity fields, or None for no quadratic
         drag. drag_length: the length d of (E3) in m (None: the cell size h). linear_drag: K_lin of
         the optional linear term in kg/(m^3 s), or None. interface_forces: the common-pressure
-        interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields).
+        interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields);
+        a list of field indices: only those fields share the common pressure, the others are
+        coupled by the drag alone (a light gas beside loaded solids: rod_penetration).
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
         for no closure (material volume follows the velocity divergence).
       fragmentation: what the closure counts as fragmented (only with c_h). 'failed' (default):
@@ -436,7 +438,15 @@ class Scene:
             if self.shape == "bspline2" or self.transfer == "apic":
                 _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
         if not isinstance(self.interface_forces, bool):
-            _fail("effects.interface_forces", self.interface_forces, "true | false")
+            try:
+                sub = tuple(sorted(set(int(k) for k in self.interface_forces)))
+                ok = all(isinstance(k, int) and not isinstance(k, bool) for k in self.interface_forces)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok or len(sub) < 2 or not all(0 <= k < self.n_fields for k in sub):
+                _fail("effects.interface_forces", self.interface_forces,
+                      f"true | false | a list of >= 2 velocity fields in 0..{self.n_fields - 1} that share the common pressure")
+            object.__setattr__(self, "interface_forces", True if len(sub) == self.n_fields else sub)
         if self.fragmentation not in FRAGMENTATION:
             _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
         if self.c_h is not None and self.transfer == "apic":
@@ -480,7 +490,14 @@ class Scene:
 
     @property
     def has_interface_forces(self) -> bool:
-        return self.n_fields > 1 and self.interface_forces
+        return self.n_fields > 1 and self.interface_forces is not False
+
+    @property
+    def pressure_fields(self) -> tuple[int, ...]:
+        """The velocity fields that share the common pressure and its interface forces (E6, E13)."""
+        if not self.has_interface_forces:
+            return ()
+        return tuple(range(self.n_fields)) if self.interface_forces is True else tuple(self.interface_forces)
 
     def material(self, phase: Phase) -> Material:
         """The resolved Material of `phase` (library key, scene material or Material)."""

@@ -146,9 +146,12 @@ def scene_from_dict(d: Mapping) -> Scene:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
         kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic'")
-    for k in ("body_force", "interface_forces"):
-        if k in e:
-            kw[k] = _typed(e[k], (bool,), f"effects.{k}", "true | false")
+    if "body_force" in e:
+        kw["body_force"] = _typed(e["body_force"], (bool,), "effects.body_force", "true | false")
+    if "interface_forces" in e:
+        f = _typed(e["interface_forces"], (bool, list), "effects.interface_forces",
+                   "true | false | a list of velocity fields")
+        kw["interface_forces"] = tuple(f) if isinstance(f, list) else f
     if "n_out" in o:
         kw["n_out"] = o["n_out"]
     return Scene(grid=grid, phases=tuple(plist), materials=tuple(mats), boundary=boundary, **kw)
@@ -175,8 +178,8 @@ def scene_to_dict(scene: Scene) -> dict:
     for k in ("drag", "drag_length", "linear_drag", "c_h"):
         if getattr(scene, k) is not None:
             e[k] = getattr(scene, k)
-    if not scene.interface_forces:
-        e["interface_forces"] = False
+    if scene.interface_forces is not True:
+        e["interface_forces"] = list(scene.interface_forces) if scene.interface_forces else False
     if scene.c_h is not None and scene.fragmentation != "failed":
         e["fragmentation"] = scene.fragmentation
     if scene.artificial_viscosity is not None:

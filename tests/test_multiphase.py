@@ -284,3 +284,35 @@ def test_volume_fractions_of_an_overlapping_mixture_sum_to_one():
     assert theta.shape == (2, 11)
     np.testing.assert_allclose(np.asarray(theta), 0.5, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-12)
+
+
+def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag():
+    """interface_forces = (0, 1): fields 0 and 1 share the common pressure; field 2 overlaps them but
+    takes no part and, without drag, evolves exactly as when it is alone in its own scene; total
+    momentum is conserved. A bad field list is named."""
+    gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=1.0, K=1e3)
+    blocks = (Phase("left", "solid", Box((0.2, 0.3), (0.5, 0.6)), velocity=(1.0, 0.0), field=0),
+              Phase("right", "solid", Box((0.5, 0.3), (0.8, 0.6)), velocity=(-1.0, 0.0), field=1))
+    cloud = Phase("cloud", "gas", Box((0.3, 0.2), (0.7, 0.7)), velocity=(0.0, 0.5), field=2, fraction=0.3)
+    grid = Grid(cells=(20, 20), h=0.05)
+    three = Scene(grid=grid, materials=(SOLID, gas), phases=blocks + (cloud,), interface_forces=(0, 1), t_end=5e-3)
+    alone = Scene(grid=grid, materials=(gas,), phases=(dataclasses.replace(cloud, field=0),), t_end=5e-3)
+    out = []
+    for scene in (three, alone):
+        params = jaxmpm.default_params(scene)
+        s0 = jaxmpm.init_state(scene, params)
+        dt = 0.3 * float(jaxmpm.cfl_limit(three, jaxmpm.default_params(three), jaxmpm.init_state(three, jaxmpm.default_params(three))))
+        out.append((s0, jaxmpm.simulate(scene, params, s0, dt=dt, n_steps=40, t_end=40 * dt, n_out=1)[0]))
+    (s0, f3), (_, f1) = out
+    cl = jaxmpm.state.phase_slices(three)[2]
+    assert float(jnp.max(jnp.abs(f1.x - jaxmpm.init_state(alone, jaxmpm.default_params(alone)).x))) > 1e-4
+    np.testing.assert_allclose(np.asarray(f3.x[cl]), np.asarray(f1.x), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(f3.v[cl]), np.asarray(f1.v), rtol=0, atol=1e-11)
+    p = lambda s: np.asarray((s.mass[:, None] * s.v).sum(0))
+    np.testing.assert_allclose(p(f3), p(s0), rtol=0, atol=1e-12 * float(jnp.abs(s0.mass[:, None] * s0.v).sum()))
+    assert three.pressure_fields == (0, 1)
+    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(three)) == three
+    for bad in ((0,), (0, 3), ("a", 1)):
+        with pytest.raises(ValueError, match=r"effects\.interface_forces = .* allowed true \| false \| a list of >= 2 "
+                                             r"velocity fields in 0\.\.2"):
+            three.replace(interface_forces=bad)
