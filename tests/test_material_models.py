@@ -84,6 +84,34 @@ def test_johnson_cook_return_lands_on_the_hardened_yield_surface():
         assert seq == pytest.approx(Y, rel=1e-6)
 
 
+@pytest.mark.parametrize("rate", [1.0e3, 1.0e6])
+def test_johnson_cook_on_the_plastic_rate_lands_on_the_surface_at_its_own_plastic_rate(rate):
+    """johnson_cook_plastic_rate: after every plastic step sigma_eq = (A + B eps_p^n)(1 + C ln(
+    deps_p / dt / epsdot0)) with deps_p the step's own plastic increment (Johnson & Cook's
+    definition), to the Newton tolerance; below the total-rate kind's stress, whose rate counts the
+    elastic part too, and equal to it as the flow becomes steady (the elastic rate dies out)."""
+    m = library_material("al2024", "mie_gruneisen+johnson_cook_plastic_rate")
+    total = library_material("al2024", "mie_gruneisen+johnson_cook")
+    c = dict(m.constants)
+    n = 2000
+    t_end = 0.1 / rate
+    t, hist = drive(m, lambda t: jnp.diag(jnp.array([-rate, 0.0, 0.0])), t_end, n)
+    _, hist_total = drive(total, lambda t: jnp.diag(jnp.array([-rate, 0.0, 0.0])), t_end, n)
+    dt = t_end / n
+    eps_p = np.array([h.eps_ps for h in hist])
+    seqs = np.array([np.sqrt(1.5 * np.sum((h.stress + h.pressure * np.eye(3)) ** 2)) for h in hist])
+    checked = 0
+    for k in range(1, n):
+        dl = eps_p[k] - eps_p[k - 1]
+        if dl > 0 and dl / dt > c["epsdot0"]:
+            Y = (c["A"] + c["B"] * eps_p[k] ** c["n"]) * (1 + c["C"] * np.log(dl / dt / c["epsdot0"]))
+            assert seqs[k] == pytest.approx(Y, rel=1e-6), k
+            checked += 1
+    assert checked > 1000
+    seq_total = np.sqrt(1.5 * np.sum((hist_total[-1].stress + hist_total[-1].pressure * np.eye(3)) ** 2))
+    assert seqs[-1] == pytest.approx(seq_total, rel=1e-3)           # steady flow: plastic rate = total rate
+
+
 def test_maxwell_stress_relaxes_as_exp_minus_t_over_tau():
     tau = 2e-4
     m = jaxmpm.Material.make("rock", "maxwell", rho0=2500.0, E=50e9, nu=0.25, tau=tau)

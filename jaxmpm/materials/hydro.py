@@ -32,8 +32,12 @@ Strength (shear modulus G):
                          adiabatic T = T_room + e / cp (all internal energy counted as heat)
                                                                                  + m, T_room, T_melt, cp
   drucker_prager         Y = clip(Y0 + dY_dp p, 0, Ymax) (pressure-dependent, concrete)  G, Y0, dY_dp, Ymax
-epsdot is the equivalent total strain rate sqrt(2/3 D':D'); the hardening is solved by Newton's
-method on sigma_eq_trial - 3 G dlambda = Y(eps_p + dlambda) (8 iterations, fixed for tracing).
+  johnson_cook_plastic_rate, johnson_cook_thermal_plastic_rate
+                         the same with epsdot the equivalent PLASTIC strain rate dlambda / dt, as
+                         Johnson & Cook define it (same constants)
+epsdot is the equivalent total strain rate sqrt(2/3 D':D') (the plastic one for the *_plastic_rate
+kinds); the hardening is solved by Newton's method on sigma_eq_trial - 3 G dlambda =
+Y(eps_p + dlambda, rate) (8 iterations, 30 with the plastic rate; fixed for tracing).
 
 Failure (damage in [0, 1], failed at 1; failed: s = 0 and p >= 0):
   spall                  damage = 1 once the largest principal stress exceeds sigma_spall
@@ -117,6 +121,8 @@ STRENGTH = {
     "von_mises": Part({**_G, "Y": POS + ("Pa",)}),
     "johnson_cook": Part(_JC),
     "johnson_cook_thermal": Part({**_JC, "m": (0.0, 10.0, False, True, ""), **_THERMAL}),
+    "johnson_cook_plastic_rate": Part(_JC),
+    "johnson_cook_thermal_plastic_rate": Part({**_JC, "m": (0.0, 10.0, False, True, ""), **_THERMAL}),
     "drucker_prager": Part({**_G, "Y0": NONNEG + ("Pa",), "dY_dp": NONNEG + ("",), "Ymax": POS + ("Pa",)}),
 }
 FAILURE = {
@@ -214,6 +220,7 @@ def rate_factor(c, epsdot):
 # --------------------------------------------------------------------------- strength
 def _flow_stress(strength, c, eps, epsdot, e, p):
     """Yield stress Y(eps_p) (N,) Pa and its derivative dY/deps_p."""
+    strength = strength.removesuffix("_plastic_rate")
     if strength == "von_mises":
         return c["Y"] * jnp.ones_like(eps), jnp.zeros_like(eps)
     if strength == "drucker_prager":
@@ -227,20 +234,34 @@ def _flow_stress(strength, c, eps, epsdot, e, p):
     return Y, dY
 
 
-def radial_return(strength, c, s_tr, eps, epsdot, e, p, iterations=8):
+def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     """Return the trial deviator onto Y(eps_p + dlambda): (s, dlambda). Newton on
-    f(dl) = sigma_eq_trial - 3 G dl - Y(eps_p + dl), started at the perfectly plastic step."""
+    f(dl) = sigma_eq_trial - 3 G dl - Y(eps_p + dl), started at the perfectly plastic step. With a
+    *_plastic_rate strength the rate in Y is dl / dt (the step's equivalent plastic strain rate; the
+    yield test uses the reference rate) and dY/d(dl) has the rate term's C Y_0 / dl."""
     G = c["G"]
     seq = equivalent_stress(s_tr)
-    Y0, _ = _flow_stress(strength, c, eps, epsdot, e, p)
+    plastic_rate = strength.endswith("_plastic_rate")
+    Y0, _ = _flow_stress(strength, c, eps, jnp.zeros_like(epsdot) if plastic_rate else epsdot, e, p)
     plastic = seq > Y0
     dl0 = jnp.where(plastic, (seq - Y0) / (3 * G), 0.0)
     dl = dl0
-    if strength in ("johnson_cook", "johnson_cook_thermal"):
+    if strength.startswith("johnson_cook") and not plastic_rate:
         for _ in range(iterations):
             Y, dY = _flow_stress(strength, c, eps + dl, epsdot, e, p)
             f = seq - 3 * G * dl - Y
             dl = jnp.clip(dl + f / (3 * G + dY), 0.0, dl0)
+    elif plastic_rate:      # f(0+) > 0 > f(dl0): Newton kept inside the bracket, bisection where it leaves it
+        lo, hi = jnp.zeros_like(dl0), dl0
+        for _ in range(30):
+            rate = dl / dt
+            Y, dY = _flow_stress(strength, c, eps + dl, rate, e, p)
+            above = rate > c["epsdot0"]
+            dY = dY + jnp.where(above, Y / rate_factor(c, rate) * c["C"] / jnp.where(above, dl, 1.0), 0.0)
+            f = seq - 3 * G * dl - Y
+            lo, hi = jnp.where(f > 0, dl, lo), jnp.where(f > 0, hi, dl)
+            step = dl + f / (3 * G + dY)
+            dl = jnp.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
     dl = jnp.where(plastic, dl, 0.0)
     factor = jnp.where(plastic, (seq - 3 * G * dl) / seq, 1.0)
     return s_tr * factor[:, None, None], dl
@@ -311,7 +332,7 @@ def compose(eos, strength, failure):
             if strength == "elastic":
                 s_new, dl = s_tr, jnp.zeros_like(mp.eps_ps)
             else:
-                s_new, dl = radial_return(strength, c, s_tr, mp.eps_ps, epsdot, mp.energy, p_old)
+                s_new, dl = radial_return(strength, c, s_tr, mp.eps_ps, epsdot, mp.energy, p_old, dt)
         else:
             s_new, dl = jnp.zeros_like(s_old), jnp.zeros_like(mp.eps_ps)
         eps_new = mp.eps_ps + dl
