@@ -283,7 +283,8 @@ def read(path):
 # ----------------------------------------------------------------------------------- plots, summaries
 def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     """PNG of one State (no time axis), particles coloured by phase: 2D a scatter of x, 1D velocity
-    and stress against position, 3D the projection on the x-y plane. Returns the path.
+    and stress against position, 3D the projection on the x-y plane; in 2D and 3D a second panel
+    coloured by damage where any particle is damaged (the crack pattern). Returns the path.
     Raises FileExistsError if `path` exists and not `overwrite`."""
     from matplotlib.figure import Figure
 
@@ -311,20 +312,30 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     else:
         width = 6.5
         span = hi[:2] - lo[:2]
-        fig = Figure(figsize=(width, max(2.5, min(9.0, width * span[1] / span[0]))), layout="constrained")
-        ax = fig.subplots()
+        damage = None if state.damage is None else np.asarray(state.damage)
+        cracked = damage is not None and bool(np.any(damage > 0))      # a second panel: damage (the crack pattern)
+        fig = Figure(figsize=(width * (2 if cracked else 1), max(2.5, min(9.0, width * span[1] / span[0]))),
+                     layout="constrained")
+        axes = fig.subplots(1, 2 if cracked else 1, squeeze=False)[0]
         spacing = min(scene.grid.h / p.ppc for p in scene.phases)
         size = max(0.3, (0.75 * width * 72 * spacing / span[0]) ** 2)
+        ax = axes[0]
         for phase, sl, c in zip(scene.phases, phase_slices(scene), colors):
             ax.scatter(x[sl, 0], x[sl, 1], s=size, color=c, label=phase.name, linewidths=0,
                        alpha=1.0 if d == 2 else 0.4)
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-        ax.set_aspect("equal")
-        ax.set_xlabel("r (m)" if scene.axisymmetric else "x (m)")
-        ax.set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
         ax.legend(loc="upper right", fontsize="small", markerscale=max(1.0, 20 / size))
         ax.set_title(title + ("" if d == 2 else " (projection on x-y)"))
+        if cracked:
+            sc = axes[1].scatter(x[:, 0], x[:, 1], s=size, c=damage, cmap="coolwarm", vmin=0.0, vmax=1.0,
+                                 linewidths=0)
+            fig.colorbar(sc, ax=axes[1], label="damage (1: failed)")
+            axes[1].set_title(f"damage: {float(np.mean(damage >= 1.0)):.1%} of the particles failed")
+        for ax in axes:
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_aspect("equal")
+            ax.set_xlabel("r (m)" if scene.axisymmetric else "x (m)")
+            ax.set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
     with _atomic(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
     return path

@@ -1,4 +1,5 @@
 """jaxmpm.io: HDF5 round trip, refusal to overwrite, atomic writes, XDMF validity, plots, summaries."""
+import dataclasses
 import os
 import xml.etree.ElementTree as ET
 
@@ -191,6 +192,18 @@ def test_plot_state(run, bar, tmp_path):
     with pytest.raises(ValueError, match="one State"):
         io.plot_state(scene1, hist1, tmp_path / "bad.png")
     assert sorted(os.listdir(tmp_path)) == ["bar.png", "p.png"]
+
+
+def test_plot_state_adds_a_damage_panel_where_material_has_failed(run, tmp_path):
+    """The crack pattern: with damaged particles the picture has a second panel (twice as wide)."""
+    import struct
+
+    scene, _, final, _ = run
+    width = lambda path: struct.unpack(">I", path.read_bytes()[16:20])[0]         # PNG IHDR width
+    intact = io.plot_state(scene, final, tmp_path / "intact.png")
+    broken = dataclasses.replace(final, damage=final.damage.at[::2].set(1.0))
+    cracked = io.plot_state(scene, broken, tmp_path / "cracked.png")
+    assert width(cracked) > 1.8 * width(intact)
 
 
 def test_summary(run, tmp_path):
