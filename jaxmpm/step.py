@@ -214,22 +214,18 @@ def interface_force(lay, st, beta, state, g, dg, m_min):
     kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
     P = fields.lsq_nodal_pressure(g["lsq"], d, h)
     shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)               # static (K,)
-    if not shared.all():                    # the other fields feel the drag only: no part in p_n or I
-        theta_p = theta * jnp.asarray(shared, dtype)[:, None]
-        p_n = fields.common_pressure(theta_p, kappa, P)                                # (E6)
-    else:
-        p_n = fields.common_pressure(theta, kappa, P)                                  # (E6)
+    # fields outside scene.pressure_fields feel the drag only: no part in p_n or in I
+    w = None if shared.all() else jnp.asarray(shared, dtype)[:, None]
+    p_n = fields.common_pressure(theta if w is None else theta * w, kappa, P)         # (E6)
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
     iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
     I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso, _radius(lay, state))))
     grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
     I = I - grad_p.reshape(I.shape)
     p_amb = fields.ambient_pressure(theta, kappa, P) if lay.scene.c_h is not None else None
-    if not shared.all():
-        mask = jnp.asarray(shared, dtype)
-        return fields.share_interface_force(I * mask[:, None, None], g["m"][..., 0] * mask[:, None], m_min) \
-            * mask[:, None, None], p_amb
-    return fields.share_interface_force(I, g["m"][..., 0], m_min), p_amb
+    if w is None:
+        return fields.share_interface_force(I, g["m"][..., 0], m_min), p_amb
+    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None], p_amb
 
 
 def exchange_force(lay, params, m, vol, v, dt, m_min):

@@ -98,3 +98,14 @@ def solid_bulk_modulus(c, rho, e, dim):
 def fluid_bulk_modulus(c, rho, e, dim):
     """K, Pa."""
     return c["K"] * jnp.ones_like(rho)
+
+
+def total_stress_energy(mp, sig, p, D, work, alpha_of):
+    """Specific internal energy (N,) J/kg after a total-stress update to `sig` (N, d, d) with pressure
+    p = -tr(sig) / d: the work of the midpoint stress the grid sees over the step, de = work *
+    sigma_f : D, with the closure's alpha p (E8) where `alpha_of` is given."""
+    d = sig.shape[-1]
+    a = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)[:, None, None]
+    eye = jnp.eye(d, dtype=sig.dtype)
+    sig_f = 0.5 * (mp.stress + sig) + (1 - a) * (0.5 * (mp.pressure + p))[:, None, None] * eye
+    return mp.energy + work * jnp.sum(sig_f * D, axis=(-1, -2))

@@ -84,14 +84,9 @@ def _total_stress(fn):
     pressure = -tr(stress) / d and the energy from the midpoint stress the grid sees."""
 
     def update(c, mp, L, D, dt, work, q, alpha_of):
-        d = L.shape[-1]
         F, sig = fn(c, mp.F, mp.stress, L, dt)
-        p = -jnp.trace(sig, axis1=-2, axis2=-1) / d
-        a = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)[:, None, None]
-        eye = jnp.eye(d, dtype=sig.dtype)
-        sig_f = 0.5 * (mp.stress + sig) + (1 - a) * (0.5 * (mp.pressure + p))[:, None, None] * eye
-        energy = mp.energy + work * jnp.sum(sig_f * D, axis=(-1, -2))
-        return mp._replace(F=F, stress=sig, pressure=p, energy=energy)
+        p = -jnp.trace(sig, axis1=-2, axis2=-1) / L.shape[-1]
+        return mp._replace(F=F, stress=sig, pressure=p, energy=elastic.total_stress_energy(mp, sig, p, D, work, alpha_of))
 
     return update
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxmpm.materials.elastic import hypoelastic_update
+from jaxmpm.materials.elastic import hypoelastic_update, total_stress_energy
 
 
 def maxwell_update(c, F, stress, L, dt):
@@ -29,7 +29,7 @@ def brittle_maxwell_update(c, mp, L, D, dt, work, q, alpha_of):
     tensile strength sigma_t; failed material (from that step on) relaxes its deviatoric stress with
     tau_failed (<< tau: it flows as rubble) and carries no tension (its pressure is floored at 0),
     the failure convention of the hydrocode models.
-    Energy: the work of the midpoint stress, as the total-stress models (`_total_stress`)."""
+    Energy: the work of the midpoint stress, as the total-stress models (`total_stress_energy`)."""
     d = L.shape[-1]
     eye = jnp.eye(d, dtype=mp.stress.dtype)
     F, intact = hypoelastic_update(c, mp.F, mp.stress * jnp.exp(-dt / c["tau"]), L, dt)
@@ -41,7 +41,5 @@ def brittle_maxwell_update(c, mp, L, D, dt, work, q, alpha_of):
     broken = broken + (p_broken - jnp.maximum(p_broken, 0.0))[:, None, None] * eye        # no tension
     sig = jnp.where((damage >= 1.0)[:, None, None], broken, intact)
     p = -jnp.trace(sig, axis1=-2, axis2=-1) / d
-    a = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)[:, None, None]
-    sig_f = 0.5 * (mp.stress + sig) + (1 - a) * (0.5 * (mp.pressure + p))[:, None, None] * eye
-    energy = mp.energy + work * jnp.sum(sig_f * D, axis=(-1, -2))
-    return mp._replace(F=F, stress=sig, pressure=p, energy=energy, damage=damage)
+    return mp._replace(F=F, stress=sig, pressure=p, energy=total_stress_energy(mp, sig, p, D, work, alpha_of),
+                       damage=damage)

@@ -159,15 +159,11 @@ def _rod_diameter(scene) -> float:
 def penetration_history(scene, history) -> dict:
     """`penetration_measures` at every output time of a History: arrays t (s), depth, rod_length,
     tail_speed."""
-    t = np.asarray(history.t)
-    rows = [penetration_measures(scene, _at(history, k)) for k in range(len(t))]
-    return {"t": t, **{key: np.array([r[key] for r in rows]) for key in rows[0]}}
-
-
-def _at(history, k):
     import jax
 
-    return jax.tree.map(lambda a: a[k], history)
+    t = np.asarray(history.t)
+    rows = [penetration_measures(scene, jax.tree.map(lambda a: a[k], history)) for k in range(len(t))]
+    return {"t": t, **{key: np.array([r[key] for r in rows]) for key in rows[0]}}
 
 
 def steady_penetration_rate(scene, history, window=(0.3, 1.0)) -> tuple[float, float]:

@@ -1,0 +1,202 @@
+"""Geometry of a scene: the bodies phases fill (Box, Sphere, Difference) and the fixed Cartesian
+grid, each validated when built (ValueError naming the field and the allowed range). SI units."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+def _fail(name: str, value: Any, allowed: str) -> None:
+    raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
+
+
+def _floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = (value,)
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        _fail(name, value, "a list of numbers")
+    if any(isinstance(v, bool) for v in value):
+        _fail(name, value, "a list of numbers")
+    if n is not None and len(out) != n:
+        _fail(name, value, f"a list of {n} numbers (one per axis)")
+    if not all(math.isfinite(v) for v in out):
+        _fail(name, value, "finite numbers")
+    return out
+
+
+# ----------------------------------------------------------------------------------- geometry
+@dataclass(frozen=True)
+class Box:
+    """Axis-aligned box [lo, hi] (m)."""
+
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+
+    def __post_init__(self):
+        object.__setattr__(self, "lo", _floats("geometry.lo", self.lo))
+        object.__setattr__(self, "hi", _floats("geometry.hi", self.hi, len(self.lo)))
+        for d, (a, b) in enumerate(zip(self.lo, self.hi)):
+            if not b > a:
+                _fail(f"geometry.hi[{d}]", b, f"> geometry.lo[{d}] = {a}")
+
+    def contains(self, x):
+        import numpy as np
+
+        return np.all((x >= np.asarray(self.lo)) & (x < np.asarray(self.hi)), axis=-1)
+
+    def to_dict(self):
+        return {"type": "box", "lo": list(self.lo), "hi": list(self.hi)}
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Ball of radius `radius` (m) around `center` (a disk in 2D, a segment in 1D)."""
+
+    center: tuple[float, ...]
+    radius: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _floats("geometry.center", self.center))
+        r = _floats("geometry.radius", self.radius, 1)[0]
+        if not r > 0:
+            _fail("geometry.radius", r, "> 0 m")
+        object.__setattr__(self, "radius", r)
+
+    @property
+    def lo(self):
+        return tuple(c - self.radius for c in self.center)
+
+    @property
+    def hi(self):
+        return tuple(c + self.radius for c in self.center)
+
+    def contains(self, x):
+        import numpy as np
+
+        return np.sum((x - np.asarray(self.center)) ** 2, axis=-1) < self.radius**2
+
+    def to_dict(self):
+        return {"type": "sphere", "center": list(self.center), "radius": self.radius}
+
+
+@dataclass(frozen=True)
+class Difference:
+    """The points of `base` (Box or Sphere) outside every geometry in `minus` (m): a fluid around a
+    body, a plate with a hole. Particles are sampled on `base`'s cells."""
+
+    base: Any
+    minus: tuple = ()
+
+    def __post_init__(self):
+        if not isinstance(self.base, (Box, Sphere)):
+            _fail("geometry.base", self.base, "a Box or Sphere")
+        minus = (self.minus,) if isinstance(self.minus, (Box, Sphere, Difference)) else tuple(self.minus)
+        for g in minus:
+            if not isinstance(g, (Box, Sphere, Difference)):
+                _fail("geometry.minus", g, "a list of Box, Sphere or Difference")
+            if len(g.lo) != len(self.base.lo):
+                _fail("geometry.minus", g.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
+        object.__setattr__(self, "minus", minus)
+
+    @property
+    def lo(self):
+        return self.base.lo
+
+    @property
+    def hi(self):
+        return self.base.hi
+
+    def contains(self, x):
+        inside = self.base.contains(x)
+        for g in self.minus:
+            inside = inside & ~g.contains(x)
+        return inside
+
+    def to_dict(self):
+        return {"type": "difference", "base": self.base.to_dict(), "minus": [g.to_dict() for g in self.minus]}
+
+
+GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
+
+
+def geometry_from_dict(d: Mapping, where: str):
+    """Box or Sphere from its scene-file table; ValueError naming `where` on bad input."""
+    if not isinstance(d, Mapping):
+        _fail(where, d, "a table with key 'type' (box | sphere | difference)")
+    d = dict(d)
+    kind = d.pop("type", None)
+    if not isinstance(kind, str) or kind not in GEOMETRIES:
+        _fail(f"{where}.type", kind, " | ".join(GEOMETRIES))
+    cls = GEOMETRIES[kind]
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = set(d) - set(names)
+    if unknown:
+        _fail(f"{where}.{sorted(unknown)[0]}", d[sorted(unknown)[0]], f"keys {names} for type {kind!r}")
+    missing = set(names) - set(d)
+    if missing:
+        raise ValueError(f"{where}.{sorted(missing)[0]} is missing: a {kind} needs {names}")
+    if cls is Difference:
+        d["base"] = geometry_from_dict(d["base"], f"{where}.base")
+        minus = d["minus"] if isinstance(d["minus"], (list, tuple)) else [d["minus"]]
+        d["minus"] = tuple(geometry_from_dict(g, f"{where}.minus[{i}]") for i, g in enumerate(minus))
+    try:
+        return cls(**d)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
+# ----------------------------------------------------------------------------------- grid
+@dataclass(frozen=True)
+class Grid:
+    """Fixed Cartesian grid: `cells` per axis, spacing `h` (m), lower corner `origin` (m).
+
+    Nodes per axis are cells + 1; the domain is [origin, origin + cells * h].
+    """
+
+    cells: tuple[int, ...]
+    h: float
+    origin: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        cells = self.cells
+        if isinstance(cells, int):
+            cells = (cells,)
+        try:
+            ok = all(isinstance(c, int) and not isinstance(c, bool) for c in cells)
+        except TypeError:
+            ok = False
+        if not ok or not 1 <= len(tuple(cells)) <= 3:
+            _fail("grid.cells", self.cells, "a list of 1 to 3 integers")
+        cells = tuple(cells)
+        for d, c in enumerate(cells):
+            if c < 2:
+                _fail(f"grid.cells[{d}]", c, ">= 2")
+        object.__setattr__(self, "cells", cells)
+        h = _floats("grid.h", self.h, 1)[0]
+        if not h > 0:
+            _fail("grid.h", h, "> 0 m")
+        object.__setattr__(self, "h", h)
+        origin = (0.0,) * len(cells) if self.origin is None else self.origin
+        object.__setattr__(self, "origin", _floats("grid.origin", origin, len(cells)))
+
+    @property
+    def dim(self) -> int:
+        return len(self.cells)
+
+    @property
+    def nodes(self) -> tuple[int, ...]:
+        return tuple(c + 1 for c in self.cells)
+
+    @property
+    def n_nodes(self) -> int:
+        return math.prod(self.nodes)
+
+    @property
+    def hi(self) -> tuple[float, ...]:
+        return tuple(o + c * self.h for o, c in zip(self.origin, self.cells))
+
+    def to_dict(self):
+        return {"cells": list(self.cells), "h": self.h, "origin": list(self.origin)}
