@@ -60,10 +60,12 @@ def program_bytes(compiled):
 def measure(n_steps, checkpoint, max_bytes):
     import jax.numpy as jnp
 
+    import jaxmpm
+
     loss, n_particles, dt = problem(n_steps)
     theta = jnp.log(jnp.array([1.0, 0.15]))
-    fwd = jax.jit(lambda th: loss(th, checkpoint))
-    vg = jax.jit(jax.value_and_grad(lambda th: loss(th, checkpoint)))
+    fwd = jaxmpm.jit(lambda th: loss(th, checkpoint))
+    vg = jaxmpm.jit(jax.value_and_grad(lambda th: loss(th, checkpoint)))
     t0 = time.perf_counter()
     c_fwd = fwd.lower(theta).compile()
     c_vg = vg.lower(theta).compile()

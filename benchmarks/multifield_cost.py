@@ -40,7 +40,7 @@ def measure(n_fields, n_grid, steps, repeats):
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
     step = jaxmpm.make_step(scene)
-    run = jax.jit(lambda p, s: jax.lax.scan(lambda c, _: (step(p, c), None), s, None, length=steps)[0])
+    run = jaxmpm.jit(lambda p, s: jax.lax.scan(lambda c, _: (step(p, c), None), s, None, length=steps)[0])
     t0 = time.perf_counter()
     state = jax.block_until_ready(run(params, state))
     compile_s = time.perf_counter() - t0

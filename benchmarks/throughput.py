@@ -12,11 +12,11 @@ Rows:
                             Each peer compiles/warms up, then times one run; we take the median over
                             --repeats separate calls. jax-naive+ynn is the same script with the XLA flag.
   jaxmpm                    jaxmpm.load_scene("mpm88"): `lax.scan` of `step(params, state, dt=dt)` for
-                            `steps` steps, jitted, compiled ahead (compile_s), warmed up once from the
+                            `steps` steps, compiled with `jaxmpm.jit` (XLA's YNNPACK fusions off on the
+                            CPU: jaxmpm/compile.py), compiled ahead (compile_s), warmed up once from the
                             initial state, then the median of --repeats timed runs, each continuing
                             from the previous one (the peers also time steps after the warm-up).
-  jaxmpm+ynn                the same with XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= (empty value;
-                            design/PERFORMANCE.md reports it helps on CPU).
+  jaxmpm-xla-defaults       the same compiled with XLA's default options (JAXMPM_XLA_DEFAULTS=1).
   jaxmpm-linear/-ddmp-musl  the same particles with shape 'linear' / 'ddmp' and the default musl update.
 A run is "stable" when, after all (1 + repeats) * steps steps (2D defaults: t = 0.4 s; the block hits
 the floor at ~0.16 s), every state value is finite, all particles are in the grid, max |v| < 10 m/s
@@ -56,7 +56,7 @@ YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
 # jaxmpm configurations: name -> (shape, transfer, extra XLA flag or None)
 JAXMPM = {
     "jaxmpm": ("bspline2", "apic", None),
-    "jaxmpm+ynn": ("bspline2", "apic", YNN_FLAG),
+    "jaxmpm-xla-defaults": ("bspline2", "apic", "JAXMPM_XLA_DEFAULTS=1"),
     "jaxmpm-linear-musl": ("linear", "musl", None),
     "jaxmpm-ddmp-musl": ("ddmp", "musl", None),
 }
@@ -77,9 +77,13 @@ def peer_dt(dim: int, n_grid: int) -> float:
 
 
 def child_env(flag: str | None) -> dict:
-    """Environment of a child process: XLA_FLAGS extended with `flag` (read when jax is imported)."""
+    """Environment of a child process: XLA_FLAGS extended with `flag` (read when jax is imported),
+    or, for a flag NAME=VALUE, that variable set."""
     env = dict(os.environ)
-    if flag:
+    if flag and not flag.startswith("--"):
+        name, value = flag.split("=", 1)
+        env[name] = value
+    elif flag:
         env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + flag).strip()
     return env
 
@@ -131,7 +135,7 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int) -> di
 
     dt = jnp.asarray(peer_dt(dim, n_grid), jnp.float32)
     t0 = time.perf_counter()
-    sim = jax.jit(rollout).lower(params, state0, dt).compile()   # dt is traced: no recompile on fallback
+    sim = jaxmpm.jit(rollout).lower(params, state0, dt).compile()   # dt is traced: no recompile on fallback
     compile_s = time.perf_counter() - t0
     out, times = measure(dt)
     finite, stable, vmax, de = stability(out)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration import data
+from jaxmpm.compile import jit
 
 SEED_CH = (0.02, 0.15, 0.5, 1.0)
 
@@ -167,7 +168,7 @@ def cmd_synthetic(args) -> int:
     model = DebrisInWaterModel.build()
     print(f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
           f"truth C_d = {truth[0]:g}, C_h = {truth[1]:g}; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
-    target = jax.jit(model.observables)(theta_of(*truth))
+    target = jit(model.observables)(theta_of(*truth))
     res = F.fit(model.observables, target, theta_of(*start), iterations=args.iterations, method=args.method,
                 tol=1e-12, progress=not args.no_progress)
     err = res.values / np.asarray(truth) - 1

@@ -24,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxmpm.compile import jit
+
 
 def loss_fn(velocities, target, weights=None):
     """theta -> weighted sum of squared residuals (km/s)^2, and the residuals (3,)."""
@@ -62,7 +64,7 @@ def _adam_step(loss, learning_rate, decay):
     value_and_grad = jax.value_and_grad(loss, has_aux=True)
     opt = optax.adam(optax.exponential_decay(learning_rate, transition_steps=1, decay_rate=decay))
 
-    @jax.jit
+    @jit
     def step(theta, state):
         (value, r), g = value_and_grad(theta)
         updates, state = opt.update(g, state, theta)
@@ -77,7 +79,7 @@ def _lbfgs_step(loss):
     opt = optax.lbfgs()
     value_and_grad = optax.value_and_grad_from_state(value_fn)
 
-    @jax.jit
+    @jit
     def step(theta, state):
         value, g = value_and_grad(theta, state=state)
         updates, new_state = opt.update(g, state, theta, value=value, grad=g, value_fn=value_fn)

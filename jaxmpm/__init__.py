@@ -4,12 +4,14 @@
     params = jaxmpm.default_params(scene)
     state  = jaxmpm.init_state(scene, params)
     step   = jaxmpm.make_step(scene)                   # pure: step(params, state) -> state
+    fast   = jaxmpm.jit(step)                          # jax.jit with jaxmpm's XLA options (compile.py)
     final, history = jaxmpm.simulate(scene, params, state, t_end=..., n_out=10)
     final, history = jaxmpm.ensemble(scene, jaxmpm.batch.sweep(params, c_h=[0.02, 0.5]), t_end=...)
 """
 from jaxmpm import batch as batch
 from jaxmpm import diagnostics as diagnostics
 from jaxmpm.batch import ensemble as ensemble
+from jaxmpm.compile import jit as jit
 from jaxmpm import io as io
 from jaxmpm.materials import Material as Material
 from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params

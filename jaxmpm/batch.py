@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.compile import jit
 from jaxmpm.params import Params
 from jaxmpm.simulate import plan_steps, simulate
 
@@ -114,7 +115,7 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
     if shard:
         (params_batch, state), m = _shard((params_batch, state), B)
-    final, history = jax.jit(jax.vmap(one))(params_batch, state)
+    final, history = jit(jax.vmap(one))(params_batch, state)
     if shard and m != B:
         final, history = jax.tree.map(lambda a: a[:B], (final, history))
     reached = np.asarray(final.t)

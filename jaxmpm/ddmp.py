@@ -10,6 +10,9 @@ for its corner nodes j, i. The force (E11) and velocity gradient (E12) use the s
 they are adjoint (energy-consistent) and exact for linear velocity fields.
 
 Nodal arrays here are dense: (K, *nodes, ...) with K velocity fields; cell arrays (K, *cells, ...).
+The per-cell contractions over corners are written as broadcast products and sums, not einsums:
+XLA's CPU backend turns these tiny batched contractions into dot calls that took most of a DDMP
+step (benchmarks/throughput.py); as sums they fuse into one loop over the cells.
 """
 from __future__ import annotations
 
@@ -73,14 +76,30 @@ def corners(a, dim):
     return jnp.stack(out, axis=1 + dim)
 
 
+@functools.lru_cache(maxsize=16)
+def _corner_nodes(cells: tuple) -> np.ndarray:
+    """(n_cells * 2^d,) flat node index of each cell's corners, cells in C order, corners last."""
+    dim = len(cells)
+    nodes = tuple(n + 1 for n in cells)
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in cells], indexing="ij"), -1).reshape(-1, 1, dim)
+    corner = idx + stencil_offsets(dim, 2)[None]
+    return np.ravel_multi_index(tuple(np.moveaxis(corner, -1, 0)), nodes).reshape(-1).astype(np.int32)
+
+
 def add_corners(c, dim):
-    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...)."""
-    total = 0
-    extra = c.ndim - 2 - dim
-    for s, o in enumerate(stencil_offsets(dim, 2)):
-        pad = [(0, 0)] + [(int(o[k]), 1 - int(o[k])) for k in range(dim)] + [(0, 0)] * extra
-        total = total + jnp.pad(jnp.take(c, s, axis=1 + dim), pad)
-    return total
+    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...).
+    A scatter-add, not a sum of shifted copies: XLA does not fuse a scatter into its consumers,
+    and fused into the particles' gather the shifted sums had every cell's contraction recomputed
+    once per particle and stencil node (a DDMP step 2-3x slower on the CPU)."""
+    K, cells = c.shape[0], c.shape[1:1 + dim]
+    extra = c.shape[2 + dim:]
+    nodes = tuple(n + 1 for n in cells)
+    n_nodes = int(np.prod(nodes))
+    rows = _corner_nodes(tuple(int(n) for n in cells))
+    rows = (np.arange(K, dtype=np.int32)[:, None] * n_nodes + rows[None]).reshape(-1)
+    flat = c.reshape((rows.size, -1))
+    out = jnp.zeros((K * n_nodes, flat.shape[1]), c.dtype).at[rows].add(flat, mode="promise_in_bounds")
+    return out.reshape((K,) + nodes + extra)
 
 
 def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
@@ -130,9 +149,11 @@ def _cell_integrator(grid, dtype, axisymmetric):
     d = grid.dim
 
     def plain(tc, T):
-        T = jnp.asarray(T, dtype)
-        out = jnp.einsum("...n,jnx->...jx", tc, T.reshape(T.shape[0], T.shape[1], -1))
-        return out.reshape(out.shape[:-1] + T.shape[2:])
+        # sum_n tc_n T[j, n, ...] as one (cells, n) @ (n, j ...) product: a library matmul, which
+        # XLA computes once instead of fusing it into (and repeating it in) every consumer
+        Tm = jnp.asarray(np.moveaxis(T, 1, 0).reshape(T.shape[1], -1), dtype)
+        out = tc.reshape(-1, tc.shape[-1]) @ Tm
+        return out.reshape(tc.shape[:-1] + T.shape[:1] + T.shape[2:])
 
     if not axisymmetric:
         return lambda tc, T, Ts: plain(tc, T)
@@ -171,7 +192,8 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     d = grid.dim
     vmin = 1e-12 * grid.h**d
     sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
-    fc = -jnp.einsum("...jab,...jib->...ia", corners(sig_hat, d), dg.A)
+    sc = corners(sig_hat, d)                                              # (..., j, a, b)
+    fc = -sum(sc[..., j, None, :, b] * dg.A[..., j, :, None, b] for j in range(2**d) for b in range(d))  # (..., i, a)
     return add_corners(fc, d)
 
 
@@ -179,7 +201,8 @@ def nodal_velocity_gradient(grid, dg, v):
     """(E12) L-bar_j = (1 / V_j) sum_i v_i (x) (S_j, grad S_i). v: (K, *nodes, d) -> (K, *nodes, d, d)."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
-    Lc = jnp.einsum("...ia,...jib->...jab", corners(v, d), dg.A)
+    vc = corners(v, d)                                                    # (..., i, a)
+    Lc = sum(vc[..., None, i, :, None] * dg.A[..., :, i, None, :] for i in range(2**d))   # (..., j, a, b)
     return safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
 
 
@@ -188,4 +211,4 @@ def nodal_scalar_gradient(grid, dg, p):
     shared by all fields: sum_i p_i (S_n, grad S_i). Returns (K, *nodes, d)."""
     d = grid.dim
     pc = corners(p[None], d)                                              # (1, *cells, 2^d)
-    return add_corners(jnp.einsum("...i,...nik->...nk", pc, dg.A), d)
+    return add_corners(sum(pc[..., None, i, None] * dg.A[..., :, i, :] for i in range(2**d)), d)

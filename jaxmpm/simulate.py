@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.compile import jit
 from jaxmpm.params import check_params
 from jaxmpm.state import check_state, phase_slices
 from jaxmpm.step import cfl_time_step, make_step
@@ -59,7 +60,7 @@ def _stack(states):
 def _chunk_fn(scene, length):
     step = make_step(scene)
 
-    @jax.jit
+    @jit
     def run(params, state, t_stop, dt):
         def body(s, _):
             return step(params, s, t_stop, dt), None
@@ -91,7 +92,7 @@ def _checked_chunk_fn(scene, length):
             return new, None
         return jax.lax.scan(body, state, jnp.arange(length))[0]
 
-    return jax.jit(checkify.checkify(run, errors=checkify.user_checks | checkify.nan_checks))
+    return jit(checkify.checkify(run, errors=checkify.user_checks | checkify.nan_checks))
 
 
 def nested_sizes(n):
@@ -128,7 +129,7 @@ def _fixed_fn(scene, n_per_out, n_out, checkpoint):
     sqrt(n_per_out) states."""
     step = make_step(scene)
 
-    @jax.jit
+    @jit
     def run(params, state, times, dt):
         def inner(s, t_stop):
             if checkpoint:
@@ -149,7 +150,7 @@ def _health_fn(scene):
     lo = np.asarray(scene.grid.origin) + margin
     hi = np.asarray(scene.grid.hi) - margin
 
-    @jax.jit
+    @jit
     def health(params, state):
         ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in ("x", "v", "stress", "volume", "energy")]))
         inside = jnp.all((state.x >= lo) & (state.x <= hi))

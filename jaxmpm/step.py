@@ -20,7 +20,7 @@ from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, constitutive, force_stress, pressure
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
-from jaxmpm.transfer import cell_sum, gather, interpolate, scatter
+from jaxmpm.transfer import cell_sum, gather, interpolate, scatter, stencil_apply, stencil_outer
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ def _stress_parts(st, volume, beta, sig, radius=None):
         sig = sig[:, :2, :2]
     d = sig.shape[-1]
     Vb = volume if beta is None else volume * beta
-    parts = {"f": -jnp.einsum("nab,nsb->nsa", Vb[:, None, None] * sig, st.dw)}
+    parts = {"f": -stencil_apply(Vb[:, None, None] * sig, st.dw)}
     if radius is not None:
         parts["f"] = parts["f"].at[..., 0].add(hoop)
     if beta is not None:
@@ -282,7 +282,7 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=No
     volumes (N,) to build them) the blend (E12):
     L_p = beta_p sum_i v_i (x) grad S_i(x_p) + (1 - beta_p) sum_j S_j(x_p) L-bar_j. Returns (N, d, d)."""
     d = lay.dim
-    L = jnp.einsum("nsa,nsb->nab", gather(st, lay.field, v), st.dw)
+    L = stencil_outer(gather(st, lay.field, v), st.dw)
     if nodal_volume is None:
         return _with_hoop(lay, st, L, v, radius)
     beta = ddmp_beta(st.xi)
@@ -365,7 +365,7 @@ def apic_update(lay, params, state, dt):
     st = stencil(scene, state.x)
     m, V = state.mass, state.volume
     affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
-    mom = st.w[..., None] * (m[:, None] * state.v)[:, None, :] + st.w[..., None] * jnp.einsum("nab,nsb->nsa", affine, st.dpos)
+    mom = st.w[..., None] * (m[:, None] * state.v)[:, None, :] + st.w[..., None] * stencil_apply(affine, st.dpos)
     acc_p = body_acceleration(lay, params, state)
     if acc_p is not None:
         mom = mom + dt * st.w[..., None] * (m[:, None] * acc_p)[:, None, :]
@@ -376,7 +376,7 @@ def apic_update(lay, params, state, dt):
     v_n = _apply_bc(lay, v_n)
     vs = gather(st, lay.field, v_n)
     v = jnp.sum(st.w[..., None] * vs, 1)
-    C = dinv * jnp.einsum("ns,nsa,nsb->nab", st.w, vs, st.dpos)
+    C = dinv * stencil_outer(st.w[..., None] * vs, st.dpos)
     moved = replace(state, x=state.x + dt * v, v=v, C=C)
     return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, C, dt))
 

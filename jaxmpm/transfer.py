@@ -3,6 +3,10 @@
 Nodal arrays of all fields are stored flat as (K * n_nodes, C): field k's node n sits at row
 k * n_nodes + n (fields as the leading axis once reshaped to (K, n_nodes, C)). Every transfer of
 the step goes through these two functions, so a faster formulation changes only this module.
+So do the per-particle contractions over the stencil (`stencil_outer`, `stencil_apply`): written
+as sums of broadcast products, not einsums, which XLA's CPU backend turns into slow batched dot
+calls for these tiny shapes (benchmarks/throughput.py; tests/test_transfer_forms.py checks them,
+and their gradients, against the einsums).
 """
 from __future__ import annotations
 
@@ -47,3 +51,15 @@ def cell_sum(st, field, n_fields, n_cells, values):
     """(K, n_cells) sum of a particle quantity (N,) over the particles of each field in each cell."""
     rows = st.cell if field is None else st.cell + field * n_cells
     return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)
+
+
+def stencil_outer(a, b):
+    """sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity
+    gradient sum_n v_n (x) grad S_n. Unrolled over the S stencil nodes (one fused loop)."""
+    return sum(a[:, s, :, None] * b[:, s, None, :] for s in range(a.shape[1]))
+
+
+def stencil_apply(m, b):
+    """m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the
+    stress force sigma . grad S_n. Unrolled over the B components."""
+    return sum(m[:, None, :, k] * b[:, :, None, k] for k in range(m.shape[-1]))

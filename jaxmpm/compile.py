@@ -1,0 +1,62 @@
+"""Compilation settings for jaxmpm's compiled functions: `jaxmpm.jit` is `jax.jit` with them.
+
+On the CPU, XLA hands small contractions, reductions and even elementwise fusions to its YNNPACK
+library, which is slow for the shapes of an MPM step (tiny per-particle and per-cell arrays):
+measured in benchmarks/throughput.py, a DDMP step is about 2x and a three-field step 2.5x faster
+with those fusions off. The option is passed per compiled function (`compiler_options`), so it
+changes nothing else in the process, and only where this XLA knows it (checked once by compiling
+a trivial function; an XLA without it simply compiles with its defaults). Set the environment
+variable JAXMPM_XLA_DEFAULTS=1 to compile with XLA's defaults instead.
+
+    run = jaxmpm.jit(lambda p, s: step(p, s))   # in user code: as fast as jaxmpm's own drivers
+"""
+from __future__ import annotations
+
+import functools
+import os
+
+import jax
+import numpy as np
+
+CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}   # empty: no YNNPACK fusions
+
+
+@functools.lru_cache(maxsize=1)
+def compiler_options() -> dict | None:
+    """The options jaxmpm compiles with ({} -> None where XLA does not know them or the user
+    opted out with JAXMPM_XLA_DEFAULTS=1)."""
+    if os.environ.get("JAXMPM_XLA_DEFAULTS", "") == "1":
+        return None
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=CPU_OPTIONS).lower(np.float32(0.0)).compile()
+    except Exception:       # an XLA without the option (or a jax without compiler_options)
+        return None
+    return dict(CPU_OPTIONS)
+
+
+def jit(fun=None, **kwargs):
+    """`jax.jit(fun, **kwargs)` with jaxmpm's compiler options; usable as a decorator.
+    XLA takes compiler options only for a top-level computation: called inside another jit
+    (whose options then apply to the whole), the function runs as a plain `jax.jit`."""
+    if fun is None:
+        return functools.partial(jit, **kwargs)
+    plain = jax.jit(fun, **kwargs)
+    opts = compiler_options()
+    if opts is None:
+        return plain
+    fast = jax.jit(fun, **{**kwargs, "compiler_options": {**opts, **kwargs.get("compiler_options", {})}})
+
+    @functools.wraps(fun)
+    def call(*args, **kw):
+        if any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((args, kw))):
+            try:
+                return fast(*args, **kw)
+            except ValueError as err:        # nested in another jit: "only ... top-level jax.jit"
+                if "compiler_options" not in str(err):
+                    raise
+                return plain(*args, **kw)
+        return fast(*args, **kw)
+
+    call.lower = fast.lower
+    call.plain = plain
+    return call

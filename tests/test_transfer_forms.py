@@ -1,0 +1,116 @@
+"""The optimised transfer and DDMP operators equal their straightforward forms (einsum, sums of
+shifted copies) on random data, values and gradients: particles anywhere in their cells, on cell
+faces and on nodes, cells without material (zero weights), 1D/2D/3D and axisymmetric."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxmpm import ddmp
+from jaxmpm.geometry import Grid
+from jaxmpm.shapes import linear_stencil
+from jaxmpm.state import stencil_offsets
+from jaxmpm.transfer import stencil_apply, stencil_outer
+
+RTOL = 1e-12
+
+
+def add_corners_shifted(c, dim):
+    """Reference: per-cell corner values summed onto nodes as a sum of shifted, padded copies."""
+    total = 0
+    extra = c.ndim - 2 - dim
+    for s, o in enumerate(stencil_offsets(dim, 2)):
+        pad = [(0, 0)] + [(int(o[k]), 1 - int(o[k])) for k in range(dim)] + [(0, 0)] * extra
+        total = total + jnp.pad(jnp.take(c, s, axis=1 + dim), pad)
+    return total
+
+
+def particles_on_faces(rng, grid, n):
+    """Random positions, a third of them snapped to cell faces or nodes."""
+    lo, hi = np.asarray(grid.origin), np.asarray(grid.hi)
+    x = lo + rng.uniform(0, 1, (n, grid.dim)) * (hi - lo)
+    snap = rng.uniform(size=(n, grid.dim)) < 0.33
+    on = lo + np.round((x - lo) / grid.h) * grid.h
+    return jnp.asarray(np.where(snap, on, x))
+
+
+def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
+    grid = Grid(cells=(3, 4, 2)[:dim], h=0.1, origin=(0.0, 0.2, -0.1)[:dim])
+    support = ddmp.node_support(grid, axisymmetric)
+    nodal_volume = jnp.asarray(rng.uniform(0, 1.2, (K,) + grid.nodes) * support)
+    cell_volume = rng.uniform(0, 1, (K,) + grid.cells) * grid.h**dim * 0.1
+    cell_volume[rng.uniform(size=cell_volume.shape) < 0.3] = 0.0          # empty cells
+    return grid, ddmp.build(grid, nodal_volume, jnp.asarray(cell_volume), axisymmetric)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_add_corners_equals_shifted_sums(dim):
+    rng = np.random.default_rng(dim)
+    cells = (3, 4, 2)[:dim]
+    c = jnp.asarray(rng.normal(size=(2,) + cells + (2**dim, 3, 2)))
+    np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
+    w = jnp.asarray(rng.normal(size=(2,) + tuple(n + 1 for n in cells) + (3, 2)))
+    g1 = jax.grad(lambda c: jnp.sum(w * ddmp.add_corners(c, dim) ** 2))(c)
+    g2 = jax.grad(lambda c: jnp.sum(w * add_corners_shifted(c, dim) ** 2))(c)
+    np.testing.assert_allclose(g1, g2, rtol=RTOL, atol=1e-14)
+
+
+@pytest.mark.parametrize("dim,axisymmetric", [(1, False), (2, False), (3, False), (2, True)])
+def test_ddmp_operators_equal_their_einsum_forms(dim, axisymmetric):
+    rng = np.random.default_rng(10 + dim)
+    grid, dg = random_ddmp_grid(rng, dim, axisymmetric=axisymmetric)
+    K = dg.V.shape[0]
+    # the cell integrals of build (R3) against the einsum of the theta corners and the tensors
+    T0, Tg = ddmp.cell_tensors(dim, grid.h)
+    tc = ddmp.corners(jnp.asarray(rng.uniform(size=(K,) + grid.nodes)), dim)
+    integrate = ddmp._cell_integrator(grid, tc.dtype, False)
+    np.testing.assert_allclose(integrate(tc, Tg, None), jnp.einsum("...n,jnik->...jik", tc, Tg), rtol=RTOL)
+    np.testing.assert_allclose(integrate(tc, T0, None), jnp.einsum("...n,jn->...j", tc, T0), rtol=RTOL)
+    vmin = 1e-12 * grid.h**dim
+
+    def force_ref(shv):
+        sig = jnp.where(dg.V[..., None, None] > vmin, shv / jnp.where(dg.V > vmin, dg.V, 1.0)[..., None, None], 0.0)
+        return add_corners_shifted(-jnp.einsum("...jab,...jib->...ia", ddmp.corners(sig, dim), dg.A), dim)
+
+    def grad_ref(v):
+        Lc = jnp.einsum("...ia,...jib->...jab", ddmp.corners(v, dim), dg.A)
+        V = dg.V[..., None, None]
+        return jnp.where(V > vmin, add_corners_shifted(Lc, dim) / jnp.where(V > vmin, V, 1.0), 0.0)
+
+    def scalar_ref(p):
+        return add_corners_shifted(jnp.einsum("...i,...nik->...nk", ddmp.corners(p[None], dim), dg.A), dim)
+
+    shv = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (dim, dim)))
+    v = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (dim,)))
+    p = jnp.asarray(rng.normal(size=grid.nodes))
+    for fast, ref, arg in ((lambda a: ddmp.nodal_stress_force(grid, dg, a), force_ref, shv),
+                           (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
+                           (lambda a: ddmp.nodal_scalar_gradient(grid, dg, a), scalar_ref, p)):
+        np.testing.assert_allclose(fast(arg), ref(arg), rtol=1e-11, atol=1e-12)
+        w = jnp.asarray(rng.normal(size=fast(arg).shape))
+        np.testing.assert_allclose(jax.grad(lambda a: jnp.sum(w * fast(a)))(arg),
+                                   jax.grad(lambda a: jnp.sum(w * ref(a)))(arg), rtol=1e-11, atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_stencil_contractions_equal_einsums(dim):
+    rng = np.random.default_rng(20 + dim)
+    grid = Grid(cells=(4, 3, 2)[:dim], h=0.25, origin=(0.0,) * dim)
+    st = linear_stencil(grid, particles_on_faces(rng, grid, 50))
+    v = jnp.asarray(rng.normal(size=st.dw.shape))              # (N, S, d): nodal values at the stencil
+    sig = jnp.asarray(rng.normal(size=(st.dw.shape[0], dim, dim)))
+    np.testing.assert_allclose(stencil_outer(v, st.dw), jnp.einsum("nsa,nsb->nab", v, st.dw), rtol=RTOL, atol=1e-13)
+    np.testing.assert_allclose(stencil_apply(sig, st.dw), jnp.einsum("nab,nsb->nsa", sig, st.dw), rtol=RTOL, atol=1e-13)
+    # gradients with respect to both arguments, through the stencil's dependence on x too
+    x = particles_on_faces(rng, grid, 50)
+
+    def both(f_outer, f_apply):
+        def loss(x, v, sig):
+            dw = linear_stencil(grid, x).dw
+            return jnp.sum(f_outer(v, dw) ** 2) + jnp.sum(jnp.sin(f_apply(sig, dw)))
+        return jax.grad(loss, argnums=(0, 1, 2))(x, v, sig)
+
+    fast = both(stencil_outer, stencil_apply)
+    ref = both(lambda a, b: jnp.einsum("nsa,nsb->nab", a, b), lambda m, b: jnp.einsum("nab,nsb->nsa", m, b))
+    for a, b in zip(fast, ref):
+        np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-12)
