@@ -12,7 +12,9 @@ they are adjoint (energy-consistent) and exact for linear velocity fields.
 Nodal arrays here are dense: (K, *nodes, ...) with K velocity fields; cell arrays (K, *cells, ...).
 The per-cell contractions over corners are written as broadcast products and sums, not einsums:
 XLA's CPU backend turns these tiny batched contractions into dot calls that took most of a DDMP
-step (benchmarks/throughput.py); as sums they fuse into one loop over the cells.
+step (benchmarks/throughput.py); as sums they fuse into one loop over the cells. Two equivalent
+forms, chosen at trace time (`compile.native_reductions`): reductions under `jaxmpm.jit`, unrolled
+sums of slices elsewhere.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.compile import native_reductions
 from jaxmpm.fields import safe_div
 from jaxmpm.state import stencil_offsets
 
@@ -193,7 +196,10 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     vmin = 1e-12 * grid.h**d
     sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
     sc = corners(sig_hat, d)                                              # (..., j, a, b)
-    fc = -sum(sc[..., j, None, :, b] * dg.A[..., j, :, None, b] for j in range(2**d) for b in range(d))  # (..., i, a)
+    if native_reductions():
+        fc = -jnp.sum(sc[..., :, None, :, :] * dg.A[..., :, :, None, :], axis=(-4, -1))   # (..., i, a)
+    else:
+        fc = -sum(sc[..., j, None, :, b] * dg.A[..., j, :, None, b] for j in range(2**d) for b in range(d))
     return add_corners(fc, d)
 
 
@@ -202,7 +208,10 @@ def nodal_velocity_gradient(grid, dg, v):
     d = grid.dim
     vmin = 1e-12 * grid.h**d
     vc = corners(v, d)                                                    # (..., i, a)
-    Lc = sum(vc[..., None, i, :, None] * dg.A[..., :, i, None, :] for i in range(2**d))   # (..., j, a, b)
+    if native_reductions():
+        Lc = jnp.sum(vc[..., None, :, :, None] * dg.A[..., :, :, None, :], axis=-3)     # (..., j, a, b)
+    else:
+        Lc = sum(vc[..., None, i, :, None] * dg.A[..., :, i, None, :] for i in range(2**d))
     return safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
 
 
@@ -211,4 +220,6 @@ def nodal_scalar_gradient(grid, dg, p):
     shared by all fields: sum_i p_i (S_n, grad S_i). Returns (K, *nodes, d)."""
     d = grid.dim
     pc = corners(p[None], d)                                              # (1, *cells, 2^d)
+    if native_reductions():
+        return add_corners(jnp.sum(pc[..., None, :, None] * dg.A, axis=-2), d)
     return add_corners(sum(pc[..., None, i, None] * dg.A[..., :, i, :] for i in range(2**d)), d)

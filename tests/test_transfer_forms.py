@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxmpm import ddmp
+from jaxmpm.compile import native_reductions_forms
 from jaxmpm.geometry import Grid
 from jaxmpm.shapes import linear_stencil
 from jaxmpm.state import stencil_offsets
@@ -55,8 +56,16 @@ def test_add_corners_equals_shifted_sums(dim):
     np.testing.assert_allclose(g1, g2, rtol=RTOL, atol=1e-14)
 
 
+@pytest.mark.parametrize("native", [False, True])
 @pytest.mark.parametrize("dim,axisymmetric", [(1, False), (2, False), (3, False), (2, True)])
-def test_ddmp_operators_equal_their_einsum_forms(dim, axisymmetric):
+def test_ddmp_operators_equal_their_einsum_forms(dim, axisymmetric, native):
+    """Both forms of the corner contractions (compile.native_reductions: reductions under
+    jaxmpm.jit, unrolled sums elsewhere)."""
+    with native_reductions_forms(native):
+        check_ddmp_operators(dim, axisymmetric)
+
+
+def check_ddmp_operators(dim, axisymmetric):
     rng = np.random.default_rng(10 + dim)
     grid, dg = random_ddmp_grid(rng, dim, axisymmetric=axisymmetric)
     K = dg.V.shape[0]
