@@ -12,9 +12,9 @@ they are adjoint (energy-consistent) and exact for linear velocity fields.
 Nodal arrays here are dense: (K, *nodes, ...) with K velocity fields; cell arrays (K, *cells, ...).
 The per-cell contractions over corners are written as broadcast products and sums, not einsums:
 XLA's CPU backend turns these tiny batched contractions into dot calls that took most of a DDMP
-step (benchmarks/throughput.py); as sums they fuse into one loop over the cells. Two equivalent
-forms, chosen at trace time (`compile.native_reductions`): reductions under `jaxmpm.jit`, unrolled
-sums of slices elsewhere.
+step (benchmarks/throughput.py); as sums they fuse into one loop over the cells. Their values are
+unrolled sums of slices (the fastest forward); their tangents, which reverse mode transposes, are
+reductions when traced for `jaxmpm.jit` (`_bilinear`, `compile.native_reductions`).
 """
 from __future__ import annotations
 
@@ -188,6 +188,39 @@ def build(grid, nodal_volume, cell_volume, axisymmetric=False):
     return DDMPGrid(V=V, A=A, theta=theta)
 
 
+def _bilinear(unrolled, reduced):
+    """A bilinear per-cell contraction f(x, A) with its value by `unrolled` (sums of slices: the
+    fastest forward) and its tangent by `reduced` (a reduction over a broadcast product) when traced
+    for `jaxmpm.jit`: reverse mode transposes the tangent, and a reduction transposes to a
+    broadcast where the unrolled form transposes to a padded copy of A per slice (gradients 1.7x
+    slower). Under a plain jax.jit, where YNNPACK would take the reductions, both are unrolled."""
+    @jax.custom_jvp
+    def f(x, A):
+        return unrolled(x, A)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        (x, A), (dx, dA) = primals, tangents
+        g = reduced if native_reductions() else unrolled
+        return unrolled(x, A), g(dx, A) + g(x, dA)
+
+    return f
+
+
+# sum_{j,b} s_jab A_jib -> (..., i, a): the stress force (E11)
+_force_contraction = _bilinear(
+    lambda s, A: sum(s[..., j, None, :, b] * A[..., j, :, None, b] for j in range(A.shape[-3]) for b in range(A.shape[-1])),
+    lambda s, A: jnp.sum(s[..., :, None, :, :] * A[..., :, :, None, :], axis=(-4, -1)))
+# sum_i v_ia A_jib -> (..., j, a, b): the velocity gradient (E12)
+_gradient_contraction = _bilinear(
+    lambda v, A: sum(v[..., None, i, :, None] * A[..., :, i, None, :] for i in range(A.shape[-2])),
+    lambda v, A: jnp.sum(v[..., None, :, :, None] * A[..., :, :, None, :], axis=-3))
+# sum_i p_i A_nik -> (..., n, k): the integral of theta S_n grad p
+_scalar_contraction = _bilinear(
+    lambda p, A: sum(p[..., None, i, None] * A[..., :, i, :] for i in range(A.shape[-2])),
+    lambda p, A: jnp.sum(p[..., None, :, None] * A, axis=-2))
+
+
 def nodal_stress_force(grid, dg, sigma_hat_volume):
     """(E11) second part: f_i = - sum_j sigma_hat_j . (S_j, grad S_i).
     sigma_hat_volume: (K, *nodes, d, d) = sum_p V_p (1 - beta_p) sigma_p S_j(x_p) (Pa m^d).
@@ -196,11 +229,7 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     vmin = 1e-12 * grid.h**d
     sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
     sc = corners(sig_hat, d)                                              # (..., j, a, b)
-    if native_reductions():
-        fc = -jnp.sum(sc[..., :, None, :, :] * dg.A[..., :, :, None, :], axis=(-4, -1))   # (..., i, a)
-    else:
-        fc = -sum(sc[..., j, None, :, b] * dg.A[..., j, :, None, b] for j in range(2**d) for b in range(d))
-    return add_corners(fc, d)
+    return add_corners(-_force_contraction(sc, dg.A), d)
 
 
 def nodal_velocity_gradient(grid, dg, v):
@@ -208,11 +237,7 @@ def nodal_velocity_gradient(grid, dg, v):
     d = grid.dim
     vmin = 1e-12 * grid.h**d
     vc = corners(v, d)                                                    # (..., i, a)
-    if native_reductions():
-        Lc = jnp.sum(vc[..., None, :, :, None] * dg.A[..., :, :, None, :], axis=-3)     # (..., j, a, b)
-    else:
-        Lc = sum(vc[..., None, i, :, None] * dg.A[..., :, i, None, :] for i in range(2**d))
-    return safe_div(add_corners(Lc, d), dg.V[..., None, None], vmin)
+    return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
 
 
 def nodal_scalar_gradient(grid, dg, p):
@@ -220,6 +245,4 @@ def nodal_scalar_gradient(grid, dg, p):
     shared by all fields: sum_i p_i (S_n, grad S_i). Returns (K, *nodes, d)."""
     d = grid.dim
     pc = corners(p[None], d)                                              # (1, *cells, 2^d)
-    if native_reductions():
-        return add_corners(jnp.sum(pc[..., None, :, None] * dg.A, axis=-2), d)
-    return add_corners(sum(pc[..., None, i, None] * dg.A[..., :, i, :] for i in range(2**d)), d)
+    return add_corners(_scalar_contraction(pc, dg.A), d)

@@ -99,6 +99,35 @@ def check_ddmp_operators(dim, axisymmetric):
         w = jnp.asarray(rng.normal(size=fast(arg).shape))
         np.testing.assert_allclose(jax.grad(lambda a: jnp.sum(w * fast(a)))(arg),
                                    jax.grad(lambda a: jnp.sum(w * ref(a)))(arg), rtol=1e-11, atol=1e-12)
+        t = jnp.asarray(rng.normal(size=arg.shape))                      # forward mode too
+        np.testing.assert_allclose(jax.jvp(fast, (arg,), (t,))[1], jax.jvp(ref, (arg,), (t,))[1], rtol=1e-11, atol=1e-12)
+
+
+@pytest.mark.parametrize("native", [False, True])
+def test_ddmp_operators_differentiate_through_their_cell_integrals(native):
+    """The gradient with respect to the nodal volume, which reaches the operators through the
+    cell integrals A of `build` (the second argument of the corner contractions)."""
+    rng = np.random.default_rng(7)
+    grid = Grid(cells=(3, 4), h=0.1, origin=(0.0, 0.2))
+    K = 2
+    nv0 = jnp.asarray(rng.uniform(0.2, 0.9, (K,) + grid.nodes) * ddmp.node_support(grid))
+    cell_volume = jnp.asarray(rng.uniform(0.5, 1, (K,) + grid.cells) * grid.h**2 * 0.5)
+    shv = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (2, 2)))
+    v = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (2,)))
+    w = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (2,)))
+
+    def loss(nv, contract_force, contract_grad):
+        dg = ddmp.build(grid, nv, cell_volume)
+        f = ddmp.add_corners(-contract_force(ddmp.corners(shv, 2), dg.A), 2)
+        Lc = ddmp.add_corners(contract_grad(ddmp.corners(v, 2), dg.A), 2)
+        return jnp.sum(w * f) + jnp.sum(jnp.sin(Lc))
+
+    with native_reductions_forms(native):
+        fast = jax.grad(loss)(nv0, ddmp._force_contraction, ddmp._gradient_contraction)
+    ref = jax.grad(loss)(nv0, lambda s, A: jnp.einsum("...jab,...jib->...ia", s, A),
+                         lambda c, A: jnp.einsum("...ia,...jib->...jab", c, A))
+    np.testing.assert_allclose(fast, ref, rtol=1e-11, atol=1e-12)
+    assert float(jnp.abs(ref).max()) > 0
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
