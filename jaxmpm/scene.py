@@ -95,7 +95,17 @@ class Boundary:
 
 
 FRAGMENTATION = ("failed", "plastic")
+CONTINUITY = ("auto", "off", "transport")
 FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
+
+
+def is_fluid(material: Material) -> bool:
+    """Whether a material carries no shear stress: a linear fluid or an equation of state alone."""
+    from jaxmpm.materials.models import MODELS, split_model
+
+    if material.model in MODELS:
+        return material.model == "linear_fluid"
+    return not split_model(material.model)[1]
 
 
 # ----------------------------------------------------------------------------------- scene
@@ -120,6 +130,12 @@ class Scene:
         interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields);
         a list of field indices: only those fields share the common pressure, the others are
         coupled by the drag alone (a light gas beside loaded solids: rod_penetration).
+      continuity: the continuity form of (E7) between the fields that share the common pressure:
+        'transport' (the fields resist overlapping: each phase takes its compressibility share of
+        the volume that the interface forces' motion closes, the exact transpose of those forces,
+        so that their work is stored; jaxmpm.step.continuity_volume_rate), 'off', or 'auto'
+        (default: 'transport' where such a field holds a fluid phase, else 'off'). Only with
+        interface forces and transfer = 'musl'.
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
         for no closure (material volume follows the velocity divergence).
       fragmentation: what the closure counts as fragmented (only with c_h). 'failed' (default):
@@ -150,6 +166,7 @@ class Scene:
     drag_length: float | None = None
     linear_drag: float | None = None
     interface_forces: bool = True
+    continuity: str = "auto"
     c_h: float | None = None
     fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
@@ -254,6 +271,11 @@ class Scene:
                 _fail("effects.interface_forces", self.interface_forces,
                       f"true | false | a list of >= 2 velocity fields in 0..{self.n_fields - 1} that share the common pressure")
             object.__setattr__(self, "interface_forces", True if len(sub) == self.n_fields else sub)
+        if self.continuity not in CONTINUITY:
+            _fail("effects.continuity", self.continuity, " | ".join(repr(c) for c in CONTINUITY))
+        if self.continuity == "transport" and not self._continuity_possible:
+            _fail("effects.continuity", self.continuity,
+                  "'auto' | 'off' unless the scene has >= 2 velocity fields with interface forces and transfer = 'musl'")
         if self.fragmentation not in FRAGMENTATION:
             _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
         if self.c_h is not None and self.transfer == "apic":
@@ -298,6 +320,22 @@ class Scene:
     @property
     def has_interface_forces(self) -> bool:
         return self.n_fields > 1 and self.interface_forces is not False
+
+    @property
+    def _continuity_possible(self) -> bool:
+        return self.has_interface_forces and self.transfer == "musl"
+
+    @property
+    def continuity_form(self) -> str:
+        """The continuity form the step uses (E7): 'transport' or 'off'. 'auto' gives 'transport'
+        where a phase in a field that shares the common pressure is a fluid (a linear fluid or an
+        equation of state without strength) and the scene can have it, else 'off'."""
+        if self.continuity != "auto":
+            return self.continuity
+        if not self._continuity_possible:
+            return "off"
+        shared = self.pressure_fields
+        return "transport" if any(p.field in shared and is_fluid(self.material(p)) for p in self.phases) else "off"
 
     @property
     def pressure_fields(self) -> tuple[int, ...]:

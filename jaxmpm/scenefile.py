@@ -46,7 +46,7 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "c_h", "fragmentation",
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "continuity", "c_h", "fragmentation",
                "artificial_viscosity")
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
@@ -146,6 +146,8 @@ def scene_from_dict(d: Mapping) -> Scene:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
         kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic'")
+    if "continuity" in e:
+        kw["continuity"] = _typed(e["continuity"], (str,), "effects.continuity", "'auto' | 'off' | 'transport'")
     if "body_force" in e:
         kw["body_force"] = _typed(e["body_force"], (bool,), "effects.body_force", "true | false")
     if "interface_forces" in e:
@@ -180,6 +182,8 @@ def scene_to_dict(scene: Scene) -> dict:
             e[k] = getattr(scene, k)
     if scene.interface_forces is not True:
         e["interface_forces"] = list(scene.interface_forces) if scene.interface_forces else False
+    if scene.continuity != "auto":
+        e["continuity"] = scene.continuity
     if scene.c_h is not None and scene.fragmentation != "failed":
         e["fragmentation"] = scene.fragmentation
     if scene.artificial_viscosity is not None:

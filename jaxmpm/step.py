@@ -183,7 +183,7 @@ def particle_to_grid(lay, params, st, state, beta):
         parts["vol"] = w * V[:, None, None]
     if lay.scene.has_interface_forces:
         p, kappa = phase_pressure_and_compressibility(lay, params, state)
-        parts["lsq"] = fields.lsq_moments(st, p, V)                                  # (E15)
+        parts["pm"] = pressure_moments(lay, st, p, V)                                # (E15)
         parts["kvol"] = w * (V * kappa)[:, None, None]
     return _scatter_named(lay, st, parts)
 
@@ -206,26 +206,109 @@ def interface_force(lay, st, beta, state, g, dg, m_min):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
     minus the mass-fraction share of the net, so they sum to zero at each node. Also returns the
     ambient pressure of each field (the common pressure of the others, (K, n_nodes)) for the
-    closure (E8), or None without it."""
-    d, h = lay.dim, lay.scene.grid.h
-    dtype = state.mass.dtype
+    closure (E8), or None without it, and the common pressure p_n (n_nodes,)."""
+    p_n = nodal_common_pressure(lay, g, g["pm"], state.mass.dtype)
+    p_amb = None
+    if lay.scene.c_h is not None:
+        theta, kappa, P = _pressure_inputs(lay, g, g["pm"], state.mass.dtype)
+        p_amb = fields.ambient_pressure(theta, kappa, P)
+    return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), p_amb, p_n
+
+
+def pressure_moments(lay, st, pressure, volume):
+    """Per-particle, per-stencil-node moments (N, S, C) from which the nodal phase pressures are
+    formed: those of the linear fit (E15), or with the continuity form (E7) w and w p of the
+    V_p S_np-weighted average (w = V_p S_np)."""
+    if lay.scene.continuity_form == "transport":
+        w = volume[:, None] * st.w
+        return jnp.stack([w, w * pressure[:, None]], -1)
+    return fields.lsq_moments(st, pressure, volume)
+
+
+def _pressure_inputs(lay, g, moments, dtype):
+    """Nodal volume fractions, compressibilities and phase pressures, each (K, n_nodes), from the
+    scattered parts g and the scattered `pressure_moments` (K, n_nodes, C)."""
     vol = g["vol"][..., 0]
     theta = vol / _node_volume(lay, dtype)[None]
     kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
-    P = fields.lsq_nodal_pressure(g["lsq"], d, h)
+    if lay.scene.continuity_form == "transport":
+        w = moments[..., 0]
+        return theta, kappa, fields.safe_div(moments[..., 1], w, 1e-12 * jnp.max(w))
+    return theta, kappa, fields.lsq_nodal_pressure(moments, lay.dim, lay.scene.grid.h)
+
+
+def nodal_common_pressure(lay, g, moments, dtype):
+    """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
+    continuity form (E7) its compressive part max(p_n, 0)."""
+    theta, kappa, P = _pressure_inputs(lay, g, moments, dtype)
+    w = _shared_weight(lay, dtype)
+    shared = theta if w is None else theta * w
+    p = fields.common_pressure(shared, kappa, P)
+    if lay.scene.continuity_form == "transport":
+        p = jnp.where(p >= 0, p, 0.0)          # fields in contact push, they do not pull (E7)
+    return p
+
+
+def _shared_weight(lay, dtype):
+    """(K, 1) 1 for the fields that share the common pressure, 0 for the others; None when all do.
+    Fields outside scene.pressure_fields feel the drag only: no part in p_n, in I or in (E7)."""
     shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)               # static (K,)
-    # fields outside scene.pressure_fields feel the drag only: no part in p_n or in I
-    w = None if shared.all() else jnp.asarray(shared, dtype)[:, None]
-    p_n = fields.common_pressure(theta if w is None else theta * w, kappa, P)         # (E6)
+    return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
+
+
+def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
+    """(E13) the interface forces (K, n_nodes, d) of a nodal common pressure p_n (n_nodes,): linear
+    in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
+    dtype = state.mass.dtype
+    w = _shared_weight(lay, dtype)
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
     iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
     I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso, _radius(lay, state))))
     grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
     I = I - grad_p.reshape(I.shape)
-    p_amb = fields.ambient_pressure(theta, kappa, P) if lay.scene.c_h is not None else None
     if w is None:
-        return fields.share_interface_force(I, g["m"][..., 0], m_min), p_amb
-    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None], p_amb
+        return fields.share_interface_force(I, g["m"][..., 0], m_min)
+    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
+
+
+def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v):
+    """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
+    divergence of its own field, so that the work of the interface forces is stored, not created.
+
+    The interface forces I are linear in the common pressure p_m, and p_m (E6 with the V_p S_mp
+    averaged phase pressures) is linear in the particle pressures p_p. At the nodal velocities v,
+    the interface forces' power is P = v . I = sum_p p_p V_p D_p with
+
+        V_p D_p = dP / dp_p = sum_m R_m (theta_mk kappa_mk / sum_j theta_mj kappa_mj) V_p S_mp / V_mk,
+        R_m = dP / dp_m = (B^T v)_m,
+
+    R_m the rate (m^3/s) at which the fields' motion opens (R > 0) or closes (R < 0) volume at node
+    m; in the continuum R = sum_k v_k . grad theta_k - v_cm . grad Theta. This is the seed's
+    <div v_i> = (kappa_i / sum_j theta_j kappa_j) Theta div u_m: each phase takes its
+    compressibility share of the volume change, and the particles of a phase share it by V_p S_mp.
+    Their internal energy then changes by -sum_p p_p V_p D_p dt = -P dt, exactly what the interface
+    forces give the motion, and Theta is carried with the mass-averaged velocity,
+    d Theta / dt + v_cm . grad Theta = 0: fields that meet are compressed and pushed apart
+    instead of passing through each other. D_p is computed as that transpose (jax.vjp of the
+    particle pressures -> p_m -> I map at v), so it is adjoint to the discrete forces by
+    construction, DDMP and axisymmetric hoop terms included.
+
+    Contact, not cohesion: with this form the common pressure enters I as max(p_m, 0). Fields in
+    contact push each other; when they start to part, their phases expand, p_m falls to zero and
+    the coupling lets go, so bodies rebound and separate. The clipped map is still homogeneous of
+    degree one in the p_p, so the energy identity above holds exactly. The phase pressures are
+    the plain averages here, not the fit (E15): the fit's transpose has large weights of either
+    sign at one-sided nodes (a tungsten rod entering steel went non-finite in 1 us with it), the
+    average's are positive; with the continuity form the average keeps the settling column at rest."""
+    dtype = state.mass.dtype
+
+    def power_density(p_part):          # particle pressures -> p_m (E6) -> interface forces (E13)
+        mom = _scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
+        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
+
+    p_part, _ = phase_pressure_and_compressibility(lay, params, state)
+    _, transpose = jax.vjp(power_density, p_part)
+    return fields.safe_div(transpose(v)[0], state.volume, 0.0)
 
 
 def exchange_force(lay, params, m, vol, v, dt, m_min):
@@ -243,16 +326,17 @@ def exchange_force(lay, params, m, vol, v, dt, m_min):
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
     internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
-    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None)."""
+    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None, common
+    pressure (n_nodes,) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
     v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
     f = _nodal_stress_force(lay, dg, g)
-    p_amb = None
+    p_amb, p_n = None, None
     if scene.has_interface_forces:
-        I, p_amb = interface_force(lay, st, beta, state, g, dg, m_min)
+        I, p_amb, p_n = interface_force(lay, st, beta, state, g, dg, m_min)
         f = f + I
     if acc_p is not None:
         f = f + scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
@@ -264,7 +348,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if scene.has_exchange:
         F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
         a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
-    return v, a, dg, p_amb
+    return v, a, dg, p_amb, p_n
 
 
 def _with_hoop(lay, st, L, v, radius):
@@ -339,7 +423,7 @@ def seed_update(lay, params, state, dt):
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     g = particle_to_grid(lay, params, st, state, beta)                             # 2
     acc_p = body_acceleration(lay, params, state)
-    v_n, a_n, dg, p_amb_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
+    v_n, a_n, dg, p_amb_n, p_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
     p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
     if scene.transfer == "musl":                                                   # 4
         v = state.v + dt * interpolate(st, lay.field, a_n)
@@ -347,6 +431,9 @@ def seed_update(lay, params, state, dt):
         v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
         x = state.x + dt * interpolate(st, lay.field, v_r)
         L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=_radius(lay, state))
+        if scene.continuity_form == "transport":                                   # (E7)
+            extra = continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v_r)
+            L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
         moved = replace(state, x=x, v=v)
     else:
         half = 0.5 if scene.transfer == "seed_halfstep" else 1.0

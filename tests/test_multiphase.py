@@ -15,13 +15,19 @@ HEAVY = jaxmpm.Material.make("heavy", "linear_fluid", rho0=1000.0, K=1000.0)
 LIGHT = jaxmpm.Material.make("light", "linear_fluid", rho0=1.0, K=1.0)
 
 
-def mixture(drag=None, linear_drag=None, dv0=1e-3, cells=10):
-    """Two phases filling the same 1D box, half the volume each, light phase moving at dv0."""
+def mixture(drag=None, linear_drag=None, dv0=1e-3, cells=10, continuity="off"):
+    """Two phases filling the same 1D box, half the volume each, light phase moving at dv0.
+
+    The exchange tests run it without the continuity form (E7): the slab has free ends, and with
+    the form the light phase cannot leave the mixture through its leading end (the ends move with
+    the mass-averaged velocity), so the ends push back and the relative velocity departs from
+    the uniform exact solution by 26% of dv0 within the run. A uniform mixture without ends
+    (periodic) would not see it; the exchange solve itself is the same code either way."""
     box = Box((0.0,), (1.0,))
     return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), materials=(HEAVY, LIGHT),
                  phases=(Phase("heavy", "heavy", box, field=0, fraction=0.5),
                          Phase("light", "light", box, field=1, fraction=0.5, velocity=(dv0,))),
-                 drag=drag, linear_drag=linear_drag, t_end=1.0, n_out=5)
+                 drag=drag, linear_drag=linear_drag, continuity=continuity, t_end=1.0, n_out=5)
 
 
 def rate_constants(scene, params):
@@ -117,14 +123,15 @@ def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
     np.testing.assert_allclose(np.asarray(two.v[:nb]), np.asarray(one.v), rtol=0, atol=1e-11)
 
 
-def test_still_mixture_of_density_ratio_1000_stays_at_rest():
+@pytest.mark.parametrize("continuity", ["off", "transport"])
+def test_still_mixture_of_density_ratio_1000_stays_at_rest(continuity):
     heavy = jaxmpm.Material.make("heavy", "hypoelastic", rho0=1000.0, E=2.2e9 * 3 * (1 - 2 * 0.3), nu=0.3)
     light = jaxmpm.Material.make("light", "hypoelastic", rho0=1.0, E=1.4e5 * 3 * (1 - 2 * 0.3), nu=0.3)
     box = Box((0.0, 0.0), (1.0, 1.0))
     walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
     scene = Scene(grid=Grid(cells=(8, 8), h=0.125), materials=(heavy, light), boundary=walls,
                   phases=(Phase("water", "heavy", box, field=0, fraction=0.5), Phase("air", "light", box, field=1, fraction=0.5)),
-                  drag=1.0, t_end=1.0, n_out=1)
+                  drag=1.0, continuity=continuity, t_end=1.0, n_out=1)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     p0 = 1.0e5
@@ -191,7 +198,8 @@ def test_phase_in_a_field_that_does_not_exist():
               phases=(Phase("heavy", "heavy", box, field=0), Phase("light", "light", box, field=2)))
 
 
-def test_glued_bar_in_two_fields_matches_one_field():
+@pytest.mark.parametrize("continuity", ["off", "transport"])
+def test_glued_bar_in_two_fields_matches_one_field(continuity):
     """A pre-compressed bar split at its middle into two fields glued by C_d = 1e9 rings like the
     same bar in one field: energy and the stress history at the cut within 5% (E14 at work)."""
     al = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.0)
@@ -200,7 +208,7 @@ def test_glued_bar_in_two_fields_matches_one_field():
         scene = Scene(grid=Grid(cells=(120,), h=0.3 / 120), materials=(al,),
                       phases=(Phase("left", "al", Box((0.05,), (0.15,)), field=0),
                               Phase("right", "al", Box((0.15,), (0.25,)), field=1 if two else 0)),
-                      drag=1e9 if two else None, t_end=60e-6, n_out=30)
+                      drag=1e9 if two else None, t_end=60e-6, n_out=30, **(dict(continuity=continuity) if two else {}))
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
         F = s0.F * 0.99
@@ -316,3 +324,94 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
         with pytest.raises(ValueError, match=r"effects\.interface_forces = .* allowed true \| false \| a list of >= 2 "
                                              r"velocity fields in 0\.\.2"):
             three.replace(interface_forces=bad)
+
+
+# ------------------------------------------------------------------ grouping of an impact
+def test_impact_grouping_two_fields_converge_to_one_field_as_the_drag_grows():
+    """Two equal aluminium blocks meet at +150 / -50 m/s (tests/impact_blocks.py), in one field or in
+    two fields with C_d = 1e2, 1e4, 1e6 and the continuity form (E7; without it the C_d = 1e2 run
+    interpenetrates and gains 49% energy, tests/test_continuity.py). Contact stress plateau, contact
+    duration and final velocities approach the one-field run as C_d grows, within 2% at 1e6
+    (velocities against the 200 m/s closing speed; the contact duration is read at 0.5 us outputs,
+    1.3% of it, which is the error shown at every C_d). Momentum exact in every run; no run gains energy;
+    energy within 5% where the drag locks the fields (C_d >= 1e4) and in one field. At C_d = 1e2 the
+    fields slide past each other at the contact nodes while the drag acts: it dissipates 20%
+    (measured), which is what drag does, and the fields rebound nearly elastically (-30 / 130 m/s)."""
+    from impact_blocks import contact_stress, run_blocks, two_blocks
+
+    runs = {}
+    for cd in (None, 1e2, 1e4, 1e6):
+        scene = two_blocks(cd, "transport", fields=1 if cd is None else 2, n_out=160)
+        hist, E, P, gap, va, vb = run_blocks(scene)
+        t, s = np.asarray(hist.t), contact_stress(hist, scene)
+        on = t[s > 0.5 * float(np.max(s))]
+        runs[cd] = dict(plateau=float(np.median(s[(t > 25e-6) & (t < 45e-6)])), duration=on.max() - on.min(),
+                        v=np.array([va[-1], vb[-1]]), E=E / E[0] - 1)
+        np.testing.assert_allclose(P, P[0], rtol=1e-12)
+        assert runs[cd]["E"].max() < 0.002
+    one = runs[None]
+    err = {cd: (abs(runs[cd]["plateau"] / one["plateau"] - 1), abs(runs[cd]["duration"] / one["duration"] - 1),
+                np.abs(runs[cd]["v"] - one["v"]).max() / 200.0) for cd in (1e2, 1e4, 1e6)}
+    print({cd: tuple(round(float(x), 4) for x in e) for cd, e in err.items()})
+    assert all(x < 0.02 for x in err[1e6])
+    assert all(e6 <= e2 for e6, e2 in zip(err[1e6], err[1e2]))
+    assert err[1e2][2] > 0.2                     # at weak drag the fields are not locked: they rebound apart
+    for cd in (None, 1e4, 1e6):
+        assert abs(runs[cd]["E"][-1]) < 0.05
+    assert -0.3 < runs[1e2]["E"][-1] < runs[1e6]["E"][-1]
+
+
+# ------------------------------------------------------------------ gas pushing water
+def gas_and_water(two_fields, continuity="auto", shape="ddmp"):
+    """Pre-compressed gas (0 - 0.4 m, 10 kPa over its rest pressure) pushes a water layer (0.4 -
+    0.6 m) in a 1D tube closed at x = 0, without drag: in one field or in two."""
+    gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=1.2, K=1.4e5)
+    water = jaxmpm.Material.make("water", "linear_fluid", rho0=1000.0, K=2.2e9)
+    wall = jaxmpm.Boundary(faces=(("x_lo", "fixed"),))
+    kw = dict(continuity=continuity) if two_fields else {}
+    return Scene(grid=Grid(cells=(100,), h=0.01), materials=(gas, water), boundary=wall, shape=shape,
+                 phases=(Phase("gas", "gas", Box((0.0,), (0.4,)), field=0),
+                         Phase("water", "water", Box((0.4,), (0.6,)), field=1 if two_fields else 0)),
+                 t_end=4e-3, n_out=40, **kw)
+
+
+def push_water(continuity, shape):
+    """Water momentum (N s / m^2) at each output and the gas's fastest speed within 5 cells of the
+    interface (m/s), in one field and in two: {False: ..., True: ...}."""
+    p_gas, K_gas = 1.0e4, 1.4e5
+    out = {}
+    for two in (False, True):
+        scene = gas_and_water(two, continuity, shape)
+        params = jaxmpm.default_params(scene)
+        s0 = jaxmpm.init_state(scene, params)
+        gas_sl, water_sl = jaxmpm.state.phase_slices(scene)
+        J = 1 - p_gas / K_gas
+        s0 = dataclasses.replace(s0, F=s0.F.at[gas_sl].set(J), stress=s0.stress.at[gas_sl].set(-p_gas),
+                                 volume=s0.volume.at[gas_sl].multiply(J))
+        _, hist = jaxmpm.simulate(scene, params, s0, progress=False)
+        x, v, m = (np.asarray(a) for a in (hist.x[..., 0], hist.v[..., 0], hist.mass))
+        near = x[:, gas_sl] > x[:, water_sl].min(1)[:, None] - 0.05
+        out[two] = dict(p=(m[:, water_sl] * v[:, water_sl]).sum(1), gas=np.where(near, np.abs(v[:, gas_sl]), 0).max())
+    return out[False], out[True]
+
+
+@pytest.mark.parametrize("continuity,shape", [("transport", "ddmp"), ("transport", "linear"), ("off", "linear")])
+def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(continuity, shape):
+    """10 kPa of gas pushes 0.2 m of water for 4 ms (3.4 gas transit times). The water's momentum
+    within 10% of the one-field run at every output (measured with DDMP and the continuity form:
+    0.04% at the end), and the gas within 5 cells of the interface no faster than 2x the one-field
+    run's (0.24 against 0.28 m/s)."""
+    one, two = push_water(continuity, shape)
+    print(f"water momentum ratio {two['p'][-1] / one['p'][-1]:.4f}; gas peak near the interface "
+          f"{two['gas']:.3f} vs {one['gas']:.3f} m/s")
+    assert one["p"][-1] > 30.0                                  # the water was pushed (about 37 N s / m^2)
+    np.testing.assert_allclose(two["p"], one["p"], rtol=0, atol=0.10 * np.abs(one["p"]).max())
+    assert two["gas"] < 2 * one["gas"]
+
+
+def test_gas_pushing_water_with_ddmp_and_no_continuity_form_rings():
+    """Why the continuity form is on by default for fluids: with DDMP and continuity = 'off' the
+    gas next to the interface rings (measured 18 m/s at 1.6 ms, one field 0.14) and then enters the
+    water (at 3.2 ms), which pulls the water's momentum away from the one-field run."""
+    one, two = push_water("off", "ddmp")
+    assert two["gas"] > 10 * one["gas"]
