@@ -99,15 +99,6 @@ CONTINUITY = ("auto", "off", "transport")
 FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
 
 
-def is_fluid(material: Material) -> bool:
-    """Whether a material carries no shear stress: a linear fluid or an equation of state alone."""
-    from jaxmpm.materials.models import MODELS, split_model
-
-    if material.model in MODELS:
-        return material.model == "linear_fluid"
-    return not split_model(material.model)[1]
-
-
 # ----------------------------------------------------------------------------------- scene
 @dataclass(frozen=True)
 class Scene:
@@ -134,8 +125,8 @@ class Scene:
         'transport' (the fields resist overlapping: each phase takes its compressibility share of
         the volume that the interface forces' motion closes, the exact transpose of those forces,
         so that their work is stored; jaxmpm.step.continuity_volume_rate), 'off', or 'auto'
-        (default: 'transport' where such a field holds a fluid phase, else 'off'). Only with
-        interface forces and transfer = 'musl'.
+        (default: 'transport' wherever the scene has interface forces and transfer = 'musl', else
+        'off'). 'transport' only with interface forces and transfer = 'musl'.
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
         for no closure (material volume follows the velocity divergence).
       fragmentation: what the closure counts as fragmented (only with c_h). 'failed' (default):
@@ -328,14 +319,11 @@ class Scene:
     @property
     def continuity_form(self) -> str:
         """The continuity form the step uses (E7): 'transport' or 'off'. 'auto' gives 'transport'
-        where a phase in a field that shares the common pressure is a fluid (a linear fluid or an
-        equation of state without strength) and the scene can have it, else 'off'."""
+        wherever the scene can have it (>= 2 velocity fields with interface forces, transfer
+        'musl'), else 'off'."""
         if self.continuity != "auto":
             return self.continuity
-        if not self._continuity_possible:
-            return "off"
-        shared = self.pressure_fields
-        return "transport" if any(p.field in shared and is_fluid(self.material(p)) for p in self.phases) else "off"
+        return "transport" if self._continuity_possible else "off"
 
     @property
     def pressure_fields(self) -> tuple[int, ...]:

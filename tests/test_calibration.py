@@ -85,8 +85,8 @@ assert len(jax.devices()) == 2, jax.devices()
 scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=2e-7)
 params = jaxmpm.default_params(scene)
 batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15, 0.5])     # 3 members on 2 devices: padded
-a, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=20, shard=True)
-b, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=20, shard=False)
+a, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=30, shard=True)
+b, _ = jaxmpm.ensemble(scene, batch, t_end=2e-7, n_out=1, n_steps=30, shard=False)
 assert a.x.shape[0] == 3
 for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
     np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-9, atol=1e-12 * float(np.max(np.abs(np.asarray(y))) + 1e-30))
