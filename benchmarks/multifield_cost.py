@@ -2,8 +2,9 @@
 
 Scene: a 2D impact of three elastic blocks (a striker, a plate, a backing block) on a 128^2 grid,
 2 x 2 particles per cell, DDMP, the default update; with 2 and 3 fields the exchange (E3, E14) and
-the interface forces (E6, E13, E15) are on. Prints microseconds per step and per particle-step and
-the ratio to one field; writes benchmarks/results/multifield_cost.csv.
+the interface forces (E6, E13) are on, with the continuity form (E7, the default) and without it
+(continuity = 'off', the E15 fit). Prints microseconds per step and per particle-step and the
+ratio to one field; writes benchmarks/results/multifield_cost.csv.
 
     python benchmarks/multifield_cost.py [--steps 100] [--repeats 3] [--x64]
 """
@@ -20,7 +21,7 @@ import time
 import jax
 
 
-def scene_for(n_fields, n_grid):
+def scene_for(n_fields, n_grid, continuity="auto"):
     import jaxmpm
     from jaxmpm.scene import Box, Grid, Phase, Scene
 
@@ -30,13 +31,13 @@ def scene_for(n_fields, n_grid):
               Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=groups[1]),
               Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=groups[2]))
     return Scene(grid=Grid(cells=(n_grid, n_grid), h=1.0 / n_grid), materials=(mat,), phases=phases,
-                 drag=1e3 if n_fields > 1 else None, name=f"impact_{n_fields}_fields")
+                 drag=1e3 if n_fields > 1 else None, continuity=continuity, name=f"impact_{n_fields}_fields")
 
 
-def measure(n_fields, n_grid, steps, repeats):
+def measure(n_fields, n_grid, steps, repeats, continuity="auto"):
     import jaxmpm
 
-    scene = scene_for(n_fields, n_grid)
+    scene = scene_for(n_fields, n_grid, continuity)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
     step = jaxmpm.make_step(scene)
@@ -52,7 +53,7 @@ def measure(n_fields, n_grid, steps, repeats):
     sec = statistics.median(times)
     n = state.x.shape[0]
     finite = bool(jax.numpy.all(jax.numpy.isfinite(state.x)))
-    return dict(fields=n_fields, particles=n, steps=steps, seconds=sec, us_per_step=1e6 * sec / steps,
+    return dict(fields=n_fields, continuity=scene.continuity_form, particles=n, steps=steps, seconds=sec, us_per_step=1e6 * sec / steps,
                 ns_per_particle_step=1e9 * sec / steps / n, compile_s=compile_s, finite=finite)
 
 
@@ -66,14 +67,15 @@ def main():
     a = ap.parse_args()
     if a.x64:
         jax.config.update("jax_enable_x64", True)
-    rows = [measure(k, a.n_grid, a.steps, a.repeats) for k in (1, 2, 3)]
+    rows = [measure(1, a.n_grid, a.steps, a.repeats)] + [measure(k, a.n_grid, a.steps, a.repeats, c)
+                                                         for c in ("transport", "off") for k in (2, 3)]
     base = rows[0]["ns_per_particle_step"]
     print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {jax.devices()[0]}, "
           f"{os.cpu_count()} CPUs, jax {jax.__version__}")
-    print(f"{'fields':>6} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} {'x 1 field':>9} {'finite':>6}")
+    print(f"{'fields':>6} {'continuity':>10} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} {'x 1 field':>9} {'finite':>6}")
     for r in rows:
         r["ratio_to_1_field"] = r["ns_per_particle_step"] / base
-        print(f"{r['fields']:>6} {r['particles']:>9} {r['us_per_step']:>9.0f} {r['ns_per_particle_step']:>12.1f} "
+        print(f"{r['fields']:>6} {r['continuity']:>10} {r['particles']:>9} {r['us_per_step']:>9.0f} {r['ns_per_particle_step']:>12.1f} "
               f"{r['ratio_to_1_field']:>9.2f} {str(r['finite']):>6}")
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w", newline="") as f:

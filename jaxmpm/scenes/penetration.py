@@ -79,10 +79,11 @@ def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: f
 
     Status: validated against Tate's model (not against the measured penetration depths). Measured
     (float64, slope of the depth over 13.5-45 us, U_tate at the tail speed, about 1950 m/s):
-      resolution 0.5 (6100 particles, 10 s on 2 CPU cores): one field U = 1030, two 1020 m/s; Tate 1047
-      resolution 1.0 (24400 particles, 50 s):               one field U = 1072, two 1100 m/s; Tate 1048
+      resolution 0.5 (6100 particles, 10 s on 2 CPU cores): one field U = 1030, two 979 m/s; Tate 1047
+      resolution 1.0 (24400 particles, 50 s):               one field U = 1072, two 1080 m/s; Tate 1048
+    (two fields with the continuity form, the default; without it, 1020 and 1100 m/s).
     With `air` (resolution 0.5, 9840 particles, 45 us): two fields (rod and target | air) U = 1030,
-    three (rod | target | air) U = 1023 m/s against Tate's 1047; the air is dragged along by the rod
+    three (rod | target | air) U = 979 m/s against Tate's 1047; the air is dragged along by the rod
     (up to 2 km/s) but not compressed by it (no common pressure with the solids: when it shared it,
     the stress of the loaded metal drove the air beside it to tens of km/s within 2 us). Air in the
     solids' field (one field) is refused: it reached 25 km/s within 4 us and the run failed at 43 us.
