@@ -191,3 +191,16 @@ def test_grad_through_the_continuity_form_wrt_drag_and_c_h_matches_finite_differ
     assert g_cd != 0 and g_ch != 0
     np.testing.assert_allclose(g_cd, fd_cd, rtol=1e-5)
     np.testing.assert_allclose(g_ch, fd_ch, rtol=1e-5)
+
+
+def test_continuity_off_traces_no_transpose():
+    """The continuity form adds the transpose of the interface forces to the step (scatters of the
+    transposed gathers); with continuity = 'off' none of it is traced."""
+    def scatters(scene):
+        params = jaxmpm.default_params(scene)
+        state = jaxmpm.init_state(scene, params)
+        text = str(jax.make_jaxpr(jaxmpm.make_step(scene))(params, state))
+        return text.count("scatter-add")
+
+    on, off = (scatters(two_blocks(1.0, c, cells=40)) for c in ("transport", "off"))
+    assert on > off
