@@ -139,6 +139,7 @@ def test_continuity_option_validation_and_default():
     assert back.continuity == "off" and back == two_blocks(1.0, "off")
 
 
+@pytest.mark.slow
 def test_two_field_debris_cloud_front_stays_below_the_impact_speed_with_the_continuity_form():
     """The coarse debris cloud (resolution 0.75) with projectile and plate in two fields at C_d = 1.
     Without the continuity form the fields interpenetrate: the debris front (point 1, over 3-6 us)
@@ -164,6 +165,7 @@ def test_two_field_debris_cloud_front_stays_below_the_impact_speed_with_the_cont
 
 
 # ------------------------------------------------------------------ gradients
+@pytest.mark.slow
 def test_grad_through_the_continuity_form_wrt_drag_and_c_h_matches_finite_differences():
     """Two rock blocks in two fields meet at 40 m/s with drag C_d = 10 and the closure (C_h, with
     eps_ps = C_h at the start so alpha depends on it); d(kinetic energy)/d(C_d, C_h) against

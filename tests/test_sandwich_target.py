@@ -42,6 +42,7 @@ def test_laminate_core_is_stiffer_in_its_plane_than_through_its_thickness():
     assert np.isclose(c["fibre_theta"], np.pi / 2) and c["fibre_phi"] == 0.0      # axis 1 = z in (r, z, theta)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fields", [2, 3])
 def test_sandwich_in_two_and_three_fields_keeps_momentum_and_energy(fields):
     """Resolution 0.5, 10 us, projectile | plate (2) or projectile | sheets | core (3), with the
