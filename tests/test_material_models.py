@@ -277,6 +277,7 @@ def test_elastic_plastic_impact_conserves_energy(v0):
         assert energy(jax.tree.map(lambda a: a[k], hist)) == pytest.approx(energy(s0), rel=0.01)
 
 
+@pytest.mark.slow
 def test_gradient_through_a_hydrocode_impact_is_finite_and_matches_finite_differences():
     """d(final kinetic energy of the target)/d(yield stress A): autodiff vs central differences."""
     m = library_material("al2024", "mie_gruneisen+johnson_cook+spall")
