@@ -124,7 +124,7 @@ class Scene:
       continuity: the continuity form of (E7) between the fields that share the common pressure:
         'transport' (the fields resist overlapping: each phase takes its compressibility share of
         the volume that the interface forces' motion closes, the exact transpose of those forces,
-        so that their work is stored; jaxmpm.step.continuity_volume_rate), 'off', or 'auto'
+        so that their work is stored; jaxmpm.multifield.continuity_volume_rate), 'off', or 'auto'
         (default: 'transport' wherever the scene has interface forces and transfer = 'musl', else
         'off'). 'transport' only with interface forces and transfer = 'musl'.
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None

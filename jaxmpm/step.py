@@ -5,11 +5,12 @@
 Stages (PHYSICS 2.1, ARCHITECTURE): 1 shape functions, 2 particle to grid, 3 grid update,
 4 grid to particle with the seed's update and remap (or APIC), 5 constitutive update per phase.
 Everything an effect needs is chosen here, in Python, before tracing: an effect the scene does not
-name (gravity, damping, body force, DDMP, a wall) is not in the traced program at all.
+name (gravity, damping, body force, DDMP, a wall) is not in the traced program at all. The
+coupling of velocity fields (E3, E6, E7, E13, E15) is in jaxmpm.multifield; the nodal quantities
+the stages share (scatters, stress force parts, DDMP operators) in jaxmpm.nodal.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import jax
@@ -17,10 +18,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm import ddmp, fields
-from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, constitutive, force_stress, pressure
+from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
+from jaxmpm.multifield import (continuity_volume_rate, exchange_force, interface_force, phase_pressure_and_compressibility,
+                               pressure_moments)
+from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
-from jaxmpm.transfer import cell_sum, gather, interpolate, scatter, stencil_apply, stencil_outer
+from jaxmpm.transfer import gather, interpolate, scatter, stencil_apply, stencil_outer
 
 
 @dataclass(frozen=True)
@@ -76,10 +80,6 @@ def _mass_floor(state):
     return jnp.max(state.mass) * eps**2
 
 
-def _grid_shape(lay):
-    return (lay.n_fields,) + tuple(lay.scene.grid.nodes)
-
-
 def gravity_now(params, t):
     """Gravity (d,) at time t, ramped smoothly over params.gravity_ramp: g (1 - cos(pi t / T)) / 2."""
     T = params.gravity_ramp
@@ -116,61 +116,6 @@ def body_acceleration(lay, params, state):
     return acc
 
 
-def _scatter_named(lay, st, parts):
-    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}."""
-    names = list(parts)
-    sizes = [parts[k].shape[-1] for k in names]
-    g = scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes)
-    out, i = {}, 0
-    for k, c in zip(names, sizes):
-        out[k] = g[..., i:i + c]
-        i += c
-    return out
-
-
-def _stress_parts(st, volume, beta, sig, radius=None):
-    """Force contributions of particle stresses sig (N, d, d): the particle part
-    -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S.
-    Axisymmetric (radius (N,) given, sig (N, 3, 3) with theta last): the (r, z) block as above plus
-    the hoop force -V sig_thth S / r along r (PHYSICS 2.3), adjoint to L_thth = v_r / r."""
-    if radius is not None:
-        hoop = -(volume * sig[:, 2, 2] / radius)[:, None] * st.w
-        sig = sig[:, :2, :2]
-    d = sig.shape[-1]
-    Vb = volume if beta is None else volume * beta
-    parts = {"f": -stencil_apply(Vb[:, None, None] * sig, st.dw)}
-    if radius is not None:
-        parts["f"] = parts["f"].at[..., 0].add(hoop)
-    if beta is not None:
-        shv = ((volume * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
-        parts["shv"] = st.w[..., None] * shv[:, None, :]
-    return parts
-
-
-def _radius(lay, state):
-    """(N,) particle radius r (m) in axisymmetric scenes, else None."""
-    return state.x[:, 0] if lay.scene.axisymmetric else None
-
-
-def _nodal_stress_force(lay, dg, g):
-    """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
-    f = g["f"]
-    if "shv" in g:
-        shv = g["shv"].reshape(_grid_shape(lay) + (lay.dim, lay.dim))
-        f = f + ddmp.nodal_stress_force(lay.scene.grid, dg, shv).reshape(f.shape)
-    return f
-
-
-def phase_pressure_and_compressibility(lay, params, state):
-    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa). With the closure (E8)
-    the pressure the grid sees, alpha p: a fragmented material's pressure acts on no node through
-    its own stress, so it must not act through the common pressure either (E6, E13)."""
-    p = pressure(lay, state)
-    if lay.scene.c_h is not None:
-        p = closure_alpha(lay, params, state) * p
-    return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
-
-
 def particle_to_grid(lay, params, st, state, beta):
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
     (nodal volume, stress share) and the multi-field stage (E15 fit moments, compressibility) need.
@@ -178,149 +123,14 @@ def particle_to_grid(lay, params, st, state, beta):
     m, v, V = state.mass, state.v, state.volume
     w = st.w[..., None]
     parts = {"m": w * m[:, None, None], "mv": w * (m[:, None] * v)[:, None, :]}
-    parts.update(_stress_parts(st, V, beta, force_stress(lay, params, state), _radius(lay, state)))
+    parts.update(stress_parts(st, V, beta, force_stress(lay, params, state), particle_radius(lay, state)))
     if beta is not None or lay.n_fields > 1:
         parts["vol"] = w * V[:, None, None]
     if lay.scene.has_interface_forces:
         p, kappa = phase_pressure_and_compressibility(lay, params, state)
         parts["pm"] = pressure_moments(lay, st, p, V)                                # (E15)
         parts["kvol"] = w * (V * kappa)[:, None, None]
-    return _scatter_named(lay, st, parts)
-
-
-def ddmp_operators(lay, st, nodal_volume, dtype, volume):
-    """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
-    particle volumes (N,) at stencil st."""
-    scene = lay.scene
-    cells = cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype))
-    return ddmp.build(scene.grid, nodal_volume.reshape(_grid_shape(lay)),
-                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric)
-
-
-def _node_volume(lay, dtype):
-    return jnp.asarray(ddmp.node_support(lay.scene.grid, lay.scene.axisymmetric).reshape(-1), dtype)
-
-
-def interface_force(lay, st, beta, state, g, dg, m_min):
-    """(E13) interface forces between fields from the common pressure (E6, E15), (K, n_nodes, d):
-    I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
-    minus the mass-fraction share of the net, so they sum to zero at each node. Also returns the
-    ambient pressure of each field (the common pressure of the others, (K, n_nodes)) for the
-    closure (E8), or None without it, and the common pressure p_n (n_nodes,)."""
-    p_n = nodal_common_pressure(lay, g, g["pm"], state.mass.dtype)
-    p_amb = None
-    if lay.scene.c_h is not None:
-        theta, kappa, P = _pressure_inputs(lay, g, g["pm"], state.mass.dtype)
-        p_amb = fields.ambient_pressure(theta, kappa, P)
-    return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), p_amb, p_n
-
-
-def pressure_moments(lay, st, pressure, volume):
-    """Per-particle, per-stencil-node moments (N, S, C) from which the nodal phase pressures are
-    formed: those of the linear fit (E15), or with the continuity form (E7) w and w p of the
-    V_p S_np-weighted average (w = V_p S_np)."""
-    if lay.scene.continuity_form == "transport":
-        w = volume[:, None] * st.w
-        return jnp.stack([w, w * pressure[:, None]], -1)
-    return fields.lsq_moments(st, pressure, volume)
-
-
-def _pressure_inputs(lay, g, moments, dtype):
-    """Nodal volume fractions, compressibilities and phase pressures, each (K, n_nodes), from the
-    scattered parts g and the scattered `pressure_moments` (K, n_nodes, C)."""
-    vol = g["vol"][..., 0]
-    theta = vol / _node_volume(lay, dtype)[None]
-    kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
-    if lay.scene.continuity_form == "transport":
-        w = moments[..., 0]
-        return theta, kappa, fields.safe_div(moments[..., 1], w, 1e-12 * jnp.max(w))
-    return theta, kappa, fields.lsq_nodal_pressure(moments, lay.dim, lay.scene.grid.h)
-
-
-def nodal_common_pressure(lay, g, moments, dtype):
-    """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
-    continuity form (E7) its compressive part max(p_n, 0)."""
-    theta, kappa, P = _pressure_inputs(lay, g, moments, dtype)
-    w = _shared_weight(lay, dtype)
-    shared = theta if w is None else theta * w
-    p = fields.common_pressure(shared, kappa, P)
-    if lay.scene.continuity_form == "transport":
-        p = jnp.where(p >= 0, p, 0.0)          # fields in contact push, they do not pull (E7)
-    return p
-
-
-def _shared_weight(lay, dtype):
-    """(K, 1) 1 for the fields that share the common pressure, 0 for the others; None when all do.
-    Fields outside scene.pressure_fields feel the drag only: no part in p_n, in I or in (E7)."""
-    shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)               # static (K,)
-    return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
-
-
-def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
-    """(E13) the interface forces (K, n_nodes, d) of a nodal common pressure p_n (n_nodes,): linear
-    in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
-    dtype = state.mass.dtype
-    w = _shared_weight(lay, dtype)
-    p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
-    iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
-    I = _nodal_stress_force(lay, dg, _scatter_named(lay, st, _stress_parts(st, state.volume, beta, iso, _radius(lay, state))))
-    grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
-    I = I - grad_p.reshape(I.shape)
-    if w is None:
-        return fields.share_interface_force(I, g["m"][..., 0], m_min)
-    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
-
-
-def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v):
-    """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
-    divergence of its own field, so that the work of the interface forces is stored, not created.
-
-    The interface forces I are linear in the common pressure p_m, and p_m (E6 with the V_p S_mp
-    averaged phase pressures) is linear in the particle pressures p_p. At the nodal velocities v,
-    the interface forces' power is P = v . I = sum_p p_p V_p D_p with
-
-        V_p D_p = dP / dp_p = sum_m R_m (theta_mk kappa_mk / sum_j theta_mj kappa_mj) V_p S_mp / V_mk,
-        R_m = dP / dp_m = (B^T v)_m,
-
-    R_m the rate (m^3/s) at which the fields' motion opens (R > 0) or closes (R < 0) volume at node
-    m; in the continuum R = sum_k v_k . grad theta_k - v_cm . grad Theta. This is the seed's
-    <div v_i> = (kappa_i / sum_j theta_j kappa_j) Theta div u_m: each phase takes its
-    compressibility share of the volume change, and the particles of a phase share it by V_p S_mp.
-    Their internal energy then changes by -sum_p p_p V_p D_p dt = -P dt, exactly what the interface
-    forces give the motion, and Theta is carried with the mass-averaged velocity,
-    d Theta / dt + v_cm . grad Theta = 0: fields that meet are compressed and pushed apart
-    instead of passing through each other. D_p is computed as that transpose (jax.vjp of the
-    particle pressures -> p_m -> I map at v), so it is adjoint to the discrete forces by
-    construction, DDMP and axisymmetric hoop terms included.
-
-    Contact, not cohesion: with this form the common pressure enters I as max(p_m, 0). Fields in
-    contact push each other; when they start to part, their phases expand, p_m falls to zero and
-    the coupling lets go, so bodies rebound and separate. The clipped map is still homogeneous of
-    degree one in the p_p, so the energy identity above holds exactly. The phase pressures are
-    the plain averages here, not the fit (E15): the fit's transpose has large weights of either
-    sign at one-sided nodes (a tungsten rod entering steel went non-finite in 1 us with it), the
-    average's are positive; with the continuity form the average keeps the settling column at rest."""
-    dtype = state.mass.dtype
-
-    def power_density(p_part):          # particle pressures -> p_m (E6) -> interface forces (E13)
-        mom = _scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
-        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
-
-    p_part, _ = phase_pressure_and_compressibility(lay, params, state)
-    _, transpose = jax.vjp(power_density, p_part)
-    return fields.safe_div(transpose(v)[0], state.volume, 0.0)
-
-
-def exchange_force(lay, params, m, vol, v, dt, m_min):
-    """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
-    and velocities v (K, n_nodes, d)."""
-    scene = lay.scene
-    V_n = _node_volume(lay, m.dtype)
-    theta = vol / V_n[None]
-    rho = fields.safe_div(m, vol, 0.0)
-    K = fields.drag_matrix(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
-                           params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
-    return fields.exchange(m, v, K, dt, V_n, m_min)
+    return scatter_named(lay, st, parts)
 
 
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
@@ -333,7 +143,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
     v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
-    f = _nodal_stress_force(lay, dg, g)
+    f = nodal_stress_force(lay, dg, g)
     p_amb, p_n = None, None
     if scene.has_interface_forces:
         I, p_amb, p_n = interface_force(lay, st, beta, state, g, dg, m_min)
@@ -371,7 +181,7 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=No
         return _with_hoop(lay, st, L, v, radius)
     beta = ddmp_beta(st.xi)
     dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
-    Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(_grid_shape(lay) + (d,)))
+    Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(grid_shape(lay) + (d,)))
     Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
     return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)   # (E12)
 
@@ -384,7 +194,7 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     if ddmp_on or lay.scene.has_exchange:
         vol_n = scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)[..., 0]
     v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
-    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=_radius(lay, state))
+    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state))
 
 
 def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
@@ -392,7 +202,7 @@ def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
     walls applied; with several coupled fields the implicit exchange applied again (E14).
     vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d)."""
     w = st.w[..., None]
-    g = _scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
+    g = scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
     v = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
     if lay.scene.has_exchange:                                                           # (E14)
         F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
@@ -430,7 +240,7 @@ def seed_update(lay, params, state, dt):
         vol_n = g["vol"][..., 0] if "vol" in g else None
         v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
         x = state.x + dt * interpolate(st, lay.field, v_r)
-        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=_radius(lay, state))
+        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state))
         if scene.continuity_form == "transport":                                   # (E7)
             extra = continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v_r)
             L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)

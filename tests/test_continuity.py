@@ -2,7 +2,7 @@
 
 The fields resist overlapping: each phase takes its compressibility share of the volume that the
 fields' motion closes (the exact transpose of the interface forces with respect to the particle
-pressures, jaxmpm.step.continuity_volume_rate), so the interface forces' work is stored in the
+pressures, jaxmpm.multifield.continuity_volume_rate), so the interface forces' work is stored in the
 phases' compression and given back, not created; the common pressure couples the fields in
 compression only, so bodies that rebound separate. Float64 (conftest)."""
 import dataclasses
@@ -103,6 +103,8 @@ def test_low_drag_impact_without_the_continuity_form_passes_through_or_gains_ene
 def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     """At a mid-impact state: sum_p p_p V_p D_p = sum_nk v_nk . I_nk (the interface forces' power
     is stored exactly), and with continuity = 'off' the step has no such term."""
+    from jaxmpm import multifield as M
+    from jaxmpm import nodal
     from jaxmpm import step as S
     from jaxmpm.shapes import ddmp_beta, stencil
 
@@ -114,12 +116,12 @@ def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     beta = ddmp_beta(st.xi)
     m_min = S._mass_floor(s)
     g = S.particle_to_grid(lay, params, st, s, beta)
-    dg = S.ddmp_operators(lay, st, g["vol"][..., 0], s.mass.dtype, s.volume)
-    I, _, p_n = S.interface_force(lay, st, beta, s, g, dg, m_min)
+    dg = nodal.ddmp_operators(lay, st, g["vol"][..., 0], s.mass.dtype, s.volume)
+    I, _, p_n = M.interface_force(lay, st, beta, s, g, dg, m_min)
     v = jnp.asarray(np.random.default_rng(0).normal(size=I.shape)) * 100.0
-    rate = S.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, p_n, v)
-    p_part, _ = S.phase_pressure_and_compressibility(lay, params, s)
-    power = float(jnp.sum(v * S.interface_force_of_pressure(lay, st, beta, s, g, dg, m_min, p_n)))
+    rate = M.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, p_n, v)
+    p_part, _ = M.phase_pressure_and_compressibility(lay, params, s)
+    power = float(jnp.sum(v * M.interface_force_of_pressure(lay, st, beta, s, g, dg, m_min, p_n)))
     stored = float(jnp.sum(p_part * s.volume * rate))
     assert abs(power) > 0 and float(jnp.abs(I).max()) > 0
     np.testing.assert_allclose(stored, power, rtol=1e-10)

@@ -1,0 +1,150 @@
+"""The multi-velocity stage: what couples the velocity fields at the nodes. The phases' pressures
+and compressibilities, the common pressure (E6) from nodal phase pressures (the E15 fit, or the
+V_p S_np averages of the continuity form), the interface forces (E13), the continuity form's
+volume rate (E7, the transpose of E13) and the implicit exchange (E3).
+
+Shapes: N particles, K velocity fields, n_nodes nodes per field, d dimensions; `lay` is a
+jaxmpm.step.Layout. SI units.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm import ddmp, fields
+from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, pressure
+from jaxmpm.nodal import nodal_stress_force, node_volume, particle_radius, scatter_named, stress_parts
+from jaxmpm.transfer import interpolate
+
+
+def phase_pressure_and_compressibility(lay, params, state):
+    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa). With the closure (E8)
+    the pressure the grid sees, alpha p: a fragmented material's pressure acts on no node through
+    its own stress, so it must not act through the common pressure either (E6, E13)."""
+    p = pressure(lay, state)
+    if lay.scene.c_h is not None:
+        p = closure_alpha(lay, params, state) * p
+    return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
+
+
+def interface_force(lay, st, beta, state, g, dg, m_min):
+    """(E13) interface forces between fields from the common pressure (E6, E15), (K, n_nodes, d):
+    I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
+    minus the mass-fraction share of the net, so they sum to zero at each node. Also returns the
+    ambient pressure of each field (the common pressure of the others, (K, n_nodes)) for the
+    closure (E8), or None without it, and the common pressure p_n (n_nodes,)."""
+    p_n = nodal_common_pressure(lay, g, g["pm"], state.mass.dtype)
+    p_amb = None
+    if lay.scene.c_h is not None:
+        theta, kappa, P = _pressure_inputs(lay, g, g["pm"], state.mass.dtype)
+        p_amb = fields.ambient_pressure(theta, kappa, P)
+    return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), p_amb, p_n
+
+
+def pressure_moments(lay, st, pressure, volume):
+    """Per-particle, per-stencil-node moments (N, S, C) from which the nodal phase pressures are
+    formed: those of the linear fit (E15), or with the continuity form (E7) w and w p of the
+    V_p S_np-weighted average (w = V_p S_np)."""
+    if lay.scene.continuity_form == "transport":
+        w = volume[:, None] * st.w
+        return jnp.stack([w, w * pressure[:, None]], -1)
+    return fields.lsq_moments(st, pressure, volume)
+
+
+def _pressure_inputs(lay, g, moments, dtype):
+    """Nodal volume fractions, compressibilities and phase pressures, each (K, n_nodes), from the
+    scattered parts g and the scattered `pressure_moments` (K, n_nodes, C)."""
+    vol = g["vol"][..., 0]
+    theta = vol / node_volume(lay, dtype)[None]
+    kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
+    if lay.scene.continuity_form == "transport":
+        w = moments[..., 0]
+        return theta, kappa, fields.safe_div(moments[..., 1], w, 1e-12 * jnp.max(w))
+    return theta, kappa, fields.lsq_nodal_pressure(moments, lay.dim, lay.scene.grid.h)
+
+
+def nodal_common_pressure(lay, g, moments, dtype):
+    """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
+    continuity form (E7) its compressive part max(p_n, 0)."""
+    theta, kappa, P = _pressure_inputs(lay, g, moments, dtype)
+    w = _shared_weight(lay, dtype)
+    shared = theta if w is None else theta * w
+    p = fields.common_pressure(shared, kappa, P)
+    if lay.scene.continuity_form == "transport":
+        p = jnp.where(p >= 0, p, 0.0)          # fields in contact push, they do not pull (E7)
+    return p
+
+
+def _shared_weight(lay, dtype):
+    """(K, 1) 1 for the fields that share the common pressure, 0 for the others; None when all do.
+    Fields outside scene.pressure_fields feel the drag only: no part in p_n, in I or in (E7)."""
+    shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)               # static (K,)
+    return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
+
+
+def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
+    """(E13) the interface forces (K, n_nodes, d) of a nodal common pressure p_n (n_nodes,): linear
+    in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
+    dtype = state.mass.dtype
+    w = _shared_weight(lay, dtype)
+    p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
+    iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
+    I = nodal_stress_force(lay, dg, scatter_named(lay, st, stress_parts(st, state.volume, beta, iso, particle_radius(lay, state))))
+    grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
+    I = I - grad_p.reshape(I.shape)
+    if w is None:
+        return fields.share_interface_force(I, g["m"][..., 0], m_min)
+    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
+
+
+def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v):
+    """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
+    divergence of its own field, so that the work of the interface forces is stored, not created.
+
+    The interface forces I are linear in the common pressure p_m, and p_m (E6 with the V_p S_mp
+    averaged phase pressures) is linear in the particle pressures p_p. At the nodal velocities v,
+    the interface forces' power is P = v . I = sum_p p_p V_p D_p with
+
+        V_p D_p = dP / dp_p = sum_m R_m (theta_mk kappa_mk / sum_j theta_mj kappa_mj) V_p S_mp / V_mk,
+        R_m = dP / dp_m = (B^T v)_m,
+
+    R_m the rate (m^3/s) at which the fields' motion opens (R > 0) or closes (R < 0) volume at node
+    m; in the continuum R = sum_k v_k . grad theta_k - v_cm . grad Theta. This is the seed's
+    <div v_i> = (kappa_i / sum_j theta_j kappa_j) Theta div u_m: each phase takes its
+    compressibility share of the volume change, and the particles of a phase share it by V_p S_mp.
+    Their internal energy then changes by -sum_p p_p V_p D_p dt = -P dt, exactly what the interface
+    forces give the motion, and Theta is carried with the mass-averaged velocity,
+    d Theta / dt + v_cm . grad Theta = 0: fields that meet are compressed and pushed apart
+    instead of passing through each other. D_p is computed as that transpose (jax.vjp of the
+    particle pressures -> p_m -> I map at v), so it is adjoint to the discrete forces by
+    construction, DDMP and axisymmetric hoop terms included.
+
+    Contact, not cohesion: with this form the common pressure enters I as max(p_m, 0). Fields in
+    contact push each other; when they start to part, their phases expand, p_m falls to zero and
+    the coupling lets go, so bodies rebound and separate. The clipped map is still homogeneous of
+    degree one in the p_p, so the energy identity above holds exactly. The phase pressures are
+    the plain averages here, not the fit (E15): the fit's transpose has large weights of either
+    sign at one-sided nodes (a tungsten rod entering steel went non-finite in 1 us with it), the
+    average's are positive; with the continuity form the average keeps the settling column at rest."""
+    dtype = state.mass.dtype
+
+    def power_density(p_part):          # particle pressures -> p_m (E6) -> interface forces (E13)
+        mom = scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
+        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
+
+    p_part, _ = phase_pressure_and_compressibility(lay, params, state)
+    _, transpose = jax.vjp(power_density, p_part)
+    return fields.safe_div(transpose(v)[0], state.volume, 0.0)
+
+
+def exchange_force(lay, params, m, vol, v, dt, m_min):
+    """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
+    and velocities v (K, n_nodes, d)."""
+    scene = lay.scene
+    V_n = node_volume(lay, m.dtype)
+    theta = vol / V_n[None]
+    rho = fields.safe_div(m, vol, 0.0)
+    K = fields.drag_matrix(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
+                           params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
+    return fields.exchange(m, v, K, dt, V_n, m_min)

@@ -1,0 +1,79 @@
+"""Nodal quantities from the particles, shared by the step's stages: named scatters, the stress
+force parts (E11), the particle radius of axisymmetric scenes, the DDMP grid operators (R1-R3)
+and the nodes' support volumes.
+
+Shapes: N particles, S stencil nodes, K velocity fields, d dimensions; `lay` is a
+jaxmpm.step.Layout. SI units.
+"""
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+from jaxmpm import ddmp
+from jaxmpm.transfer import cell_sum, scatter, stencil_apply
+
+
+def grid_shape(lay):
+    """(K, *nodes): the nodal array shape of a Layout's fields."""
+    return (lay.n_fields,) + tuple(lay.scene.grid.nodes)
+
+
+def scatter_named(lay, st, parts):
+    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}."""
+    names = list(parts)
+    sizes = [parts[k].shape[-1] for k in names]
+    g = scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes)
+    out, i = {}, 0
+    for k, c in zip(names, sizes):
+        out[k] = g[..., i:i + c]
+        i += c
+    return out
+
+
+def stress_parts(st, volume, beta, sig, radius=None):
+    """Force contributions of particle stresses sig (N, d, d): the particle part
+    -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S.
+    Axisymmetric (radius (N,) given, sig (N, 3, 3) with theta last): the (r, z) block as above plus
+    the hoop force -V sig_thth S / r along r (PHYSICS 2.3), adjoint to L_thth = v_r / r."""
+    if radius is not None:
+        hoop = -(volume * sig[:, 2, 2] / radius)[:, None] * st.w
+        sig = sig[:, :2, :2]
+    d = sig.shape[-1]
+    Vb = volume if beta is None else volume * beta
+    parts = {"f": -stencil_apply(Vb[:, None, None] * sig, st.dw)}
+    if radius is not None:
+        parts["f"] = parts["f"].at[..., 0].add(hoop)
+    if beta is not None:
+        shv = ((volume * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
+        parts["shv"] = st.w[..., None] * shv[:, None, :]
+    return parts
+
+
+def particle_radius(lay, state):
+    """(N,) particle radius r (m) in axisymmetric scenes, else None."""
+    return state.x[:, 0] if lay.scene.axisymmetric else None
+
+
+def nodal_stress_force(lay, dg, g):
+    """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
+    f = g["f"]
+    if "shv" in g:
+        shv = g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))
+        f = f + ddmp.nodal_stress_force(lay.scene.grid, dg, shv).reshape(f.shape)
+    return f
+
+
+def ddmp_operators(lay, st, nodal_volume, dtype, volume):
+    """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
+    particle volumes (N,) at stencil st."""
+    scene = lay.scene
+    cells = cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype))
+    return ddmp.build(scene.grid, nodal_volume.reshape(grid_shape(lay)),
+                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric)
+
+
+def node_volume(lay, dtype):
+    """(n_nodes,) the volume of each node's support, m^d (per radian if axisymmetric)."""
+    return jnp.asarray(ddmp.node_support(lay.scene.grid, lay.scene.axisymmetric).reshape(-1), dtype)
