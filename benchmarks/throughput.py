@@ -32,7 +32,8 @@ caches, memory and XLA_FLAGS do not leak between them; they run one after anothe
 Run:  python benchmarks/throughput.py                  # 2D, 128^2 grid, 500 steps
       python benchmarks/throughput.py --dim 3          # 3D, 64^3 grid, 100 steps
       python benchmarks/throughput.py --only jaxmpm --steps 200 --repeats 5
-Writes benchmarks/results/throughput.csv (--out) with device, CPU count, jax version and date.
+Writes benchmarks/results/throughput.csv (2D) or throughput_3d.csv (3D; or --out) with device, CPU
+count, jax version and date.
 """
 from __future__ import annotations
 
@@ -208,7 +209,8 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=None, help="steps per timed run (default 500 in 2D, 100 in 3D)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     ap.add_argument("--only", choices=("jaxmpm", "peers"), default=None)
-    ap.add_argument("--out", default=str(HERE / "results" / "throughput.csv"))
+    ap.add_argument("--out", default=None, help="CSV to write (default results/throughput.csv in 2D, "
+                    "results/throughput_3d.csv in 3D)")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)   # child mode: one jaxmpm config
     a = ap.parse_args(argv)
     a.n_grid = a.n_grid or (128 if a.dim == 2 else 64)
@@ -247,7 +249,7 @@ def main(argv=None):
               f"{fmt(r.get('mpart_steps_per_s'), '.3f'):>13s} {fmt(r.get('ratio_to_jax_naive'), '.2f'):>7s} {yn('finite'):>6s} {yn('stable'):>6s}  "
               f"{'compile %.1f s; ' % r['compile_s'] if r.get('compile_s') else ''}{r.get('note', '')}")
 
-    out = Path(a.out)
+    out = Path(a.out) if a.out else HERE / "results" / ("throughput.csv" if a.dim == 2 else "throughput_3d.csv")
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")

@@ -24,7 +24,7 @@ from jaxmpm.multifield import (continuity_volume_rate, exchange_force, interface
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import particle_fields, phase_slices
-from jaxmpm.transfer import gather, interpolate, scatter, stencil_apply, stencil_outer
+from jaxmpm.transfer import gather, gather_by_offset, interpolate, offset_stencil, scatter, scatter_by_offset, stencil_outer
 
 
 @dataclass(frozen=True)
@@ -254,26 +254,41 @@ def seed_update(lay, params, state, dt):
 
 
 def apic_update(lay, params, state, dt):
-    """APIC / MLS-MPM step with quadratic B-splines (D^-1 = 4 / h^2), for the peers' scene."""
+    """APIC / MLS-MPM step with quadratic B-splines (D^-1 = 4 / h^2), for the peers' scene. One
+    velocity field (Scene checks it). The transfers loop over the 3^d stencil offsets with the
+    per-particle arrays component-major (`transfer.scatter_by_offset`, `gather_by_offset`)."""
     scene = lay.scene
     d, h = lay.dim, scene.grid.h
     dinv = 4.0 / h**2
     m_min = _mass_floor(state)
-    st = stencil(scene, state.x)
+    ost = offset_stencil(scene.grid, state.x, "bspline2")
     m, V = state.mass, state.volume
     affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
-    mom = st.w[..., None] * (m[:, None] * state.v)[:, None, :] + st.w[..., None] * stencil_apply(affine, st.dpos)
+    affine = jnp.transpose(affine, (1, 2, 0))                                           # (d, d, N)
+    mv = m[:, None] * state.v
     acc_p = body_acceleration(lay, params, state)
     if acc_p is not None:
-        mom = mom + dt * st.w[..., None] * (m[:, None] * acc_p)[:, None, :]
-    g = scatter(st, lay.field, jnp.concatenate([st.w[..., None] * m[:, None, None], mom], -1), lay.n_fields, lay.n_nodes)
+        mv = mv + dt * m[:, None] * acc_p
+    mv = mv.T                                                                            # (d, N)
+
+    def contrib(w, dpos):                # mass and momentum w m, w (m v + affine . (x_n - x_p))
+        mom = mv + sum(affine[:, k] * dpos[k] for k in range(d))
+        return jnp.concatenate([(w * m)[None], w * mom], 0)
+
+    g = scatter_by_offset(ost, contrib, d + 1, lay.n_nodes, m.dtype)[None]              # (1, n_nodes, 1 + d)
     v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
     if scene.damping is not None:
         v_n = v_n * jnp.exp(-params.damping * dt)
-    v_n = _apply_bc(lay, v_n)
-    vs = gather(st, lay.field, v_n)
-    v = jnp.sum(st.w[..., None] * vs, 1)
-    C = dinv * stencil_outer(st.w[..., None] * vs, st.dpos)
+    v_n = _apply_bc(lay, v_n)[0].T                                                       # (d, n_nodes)
+
+    def accumulate(carry, w, dpos, vals):  # v = sum w v_n, B = sum w v_n (x) (x_n - x_p)
+        v, B = carry
+        wv = w * vals
+        return v + wv, B + wv[:, None] * dpos[None]
+
+    n = m.shape[0]
+    v, B = gather_by_offset(ost, v_n, accumulate, (jnp.zeros((d, n), m.dtype), jnp.zeros((d, d, n), m.dtype)))
+    v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
     moved = replace(state, x=state.x + dt * v, v=v, C=C)
     return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, C, dt))
 
