@@ -134,6 +134,7 @@ def _at_offset(ost, i):
 def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
     """sum_p over every stencil offset of contrib(w, dpos) (C, N) into nodes: returns (n_nodes, C).
     contrib gets the offset's weights w (N,) and x_n - x_p (d, N); one scatter of C rows per offset."""
+    @jax.checkpoint           # reverse mode recomputes the offset's weights instead of storing S copies
     def add(i, out):
         w, dpos, node = _at_offset(ost, i)
         return out.at[:, node].add(contrib(w, dpos), mode="promise_in_bounds")
@@ -145,6 +146,7 @@ def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
 def gather_by_offset(ost, nodal, accumulate, init):
     """Fold the nodal values (C, n_nodes) at every stencil offset into a per-particle carry:
     carry = accumulate(carry, w, dpos, values) with values (C, N) at the offset's nodes."""
+    @jax.checkpoint
     def step(i, carry):
         w, dpos, node = _at_offset(ost, i)
         return accumulate(carry, w, dpos, nodal.at[:, node].get(mode="promise_in_bounds"))
