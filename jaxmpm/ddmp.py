@@ -79,30 +79,26 @@ def corners(a, dim):
     return jnp.stack(out, axis=1 + dim)
 
 
-@functools.lru_cache(maxsize=16)
-def _corner_nodes(cells: tuple) -> np.ndarray:
-    """(n_cells * 2^d,) flat node index of each cell's corners, cells in C order, corners last."""
-    dim = len(cells)
-    nodes = tuple(n + 1 for n in cells)
-    idx = np.stack(np.meshgrid(*[np.arange(n) for n in cells], indexing="ij"), -1).reshape(-1, 1, dim)
-    corner = idx + stencil_offsets(dim, 2)[None]
-    return np.ravel_multi_index(tuple(np.moveaxis(corner, -1, 0)), nodes).reshape(-1).astype(np.int32)
-
-
 def add_corners(c, dim):
-    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...).
-    A scatter-add, not a sum of shifted copies: XLA does not fuse a scatter into its consumers,
-    and fused into the particles' gather the shifted sums had every cell's contraction recomputed
-    once per particle and stencil node (a DDMP step 2-3x slower on the CPU)."""
+    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...): for each of
+    the 2^d corners, the cells' slab added to the nodes' slab shifted by that corner, in a loop over
+    the corners. The loop keeps the sum out of its consumers: fused into the particles' gather, an
+    unrolled sum of shifted copies had every cell's contraction recomputed once per particle and
+    stencil node (a DDMP step 2-3x slower on the CPU). Slab adds, unlike the scatter-add that did
+    this before, run vectorised over the cells: a DDMP step 13-15% faster (measured on the peers'
+    2D scene with DDMP, interleaved runs)."""
     K, cells = c.shape[0], c.shape[1:1 + dim]
-    extra = c.shape[2 + dim:]
+    extra = tuple(c.shape[2 + dim:])
     nodes = tuple(n + 1 for n in cells)
-    n_nodes = int(np.prod(nodes))
-    rows = _corner_nodes(tuple(int(n) for n in cells))
-    rows = (np.arange(K, dtype=np.int32)[:, None] * n_nodes + rows[None]).reshape(-1)
-    flat = c.reshape((rows.size, -1))
-    out = jnp.zeros((K * n_nodes, flat.shape[1]), c.dtype).at[rows].add(flat, mode="promise_in_bounds")
-    return out.reshape((K,) + nodes + extra)
+    offsets = jnp.asarray(stencil_offsets(dim, 2))
+
+    def add(j, out):
+        zero = jnp.zeros((), jnp.int32)
+        start = (zero,) + tuple(offsets[j, k] for k in range(dim)) + (zero,) * len(extra)
+        slab = jax.lax.dynamic_slice(out, start, (K,) + tuple(cells) + extra)
+        return jax.lax.dynamic_update_slice(out, slab + jax.lax.dynamic_index_in_dim(c, j, 1 + dim, keepdims=False), start)
+
+    return jax.lax.fori_loop(0, 2**dim, add, jnp.zeros((K,) + nodes + extra, c.dtype))
 
 
 def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
