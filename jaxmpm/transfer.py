@@ -13,8 +13,9 @@ Two forms of the transfers:
                                     used by the musl / seed updates and the multi-field stages.
   scatter_by_offset /               on an OffsetStencil: a loop over the S stencil offsets with the
   gather_by_offset                  per-particle arrays component-major (C, N); used by the APIC
-                                    step (one field), about 2x faster there on the CPU, its gradient
-                                    too (tests/test_transfer_forms.py: equal values and gradients).
+                                    step (one field): 1.3-1.5x faster there on the CPU, its gradient
+                                    1.7-2.3x (benchmarks/apic_transfer.py); tests/test_transfer_forms.py
+                                    checks equal values and gradients.
 """
 from __future__ import annotations
 
@@ -90,8 +91,8 @@ class OffsetStencil:
     (the minor axes are tiny) and, when the offsets are unrolled, recomputes every per-particle
     input in each offset's fusion. A `fori_loop` over the offsets forms each offset's (C, N) rows
     from inputs computed once, with particles on the minor axis. Measured on the peers' APIC scene
-    (benchmarks/throughput.py): 2D 128^2 about 2x, 3D 64^3 about 1.7x faster than the (N, S, C)
-    form."""
+    against the (N, S, C) form in one interleaved run (benchmarks/apic_transfer.py): forward 1.5x
+    (2D 128^2) and 1.3x (3D 48^3) faster, gradient 1.7x and 2.3x."""
 
     w1: jax.Array        # (width, d, N) 1D weights along each axis
     fx: jax.Array        # (d, N) position past the stencil's first node, in cells
