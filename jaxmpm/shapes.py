@@ -28,7 +28,8 @@ class Stencil:
     dpos: jax.Array   # (N, S, d) x_n - x_p, m
 
 
-def _node_strides(nodes):
+def node_strides(nodes):
+    """(d,) int32 flat-index strides of an array of shape `nodes` (C order)."""
     return np.array([int(np.prod(nodes[k + 1:])) for k in range(len(nodes))], dtype=np.int32)
 
 
@@ -50,24 +51,40 @@ def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
                 g = g * wk[..., e]
         grads.append(g)
     dw = jnp.stack(grads, -1)
-    strides = jnp.asarray(_node_strides(grid.nodes))
+    strides = jnp.asarray(node_strides(grid.nodes))
     node = jnp.sum((base[:, None, :] + jnp.asarray(off)[None]) * strides, -1)
-    cell_strides = jnp.asarray(_node_strides(grid.cells))
+    cell_strides = jnp.asarray(node_strides(grid.cells))
     cell = jnp.sum(jnp.clip(jnp.floor(xi).astype(jnp.int32), 0, np.asarray(grid.cells) - 1) * cell_strides, -1)
     dpos = (jnp.asarray(off, x.dtype)[None] - fx[:, None, :]) * h
     return Stencil(node=node, w=w, dw=dw, cell=cell, xi=fx, dpos=dpos)
 
 
+def linear_weights_1d(f):
+    """1D hat weights of the 2 nodes of an axis at f in [0, 1] past the first: a tuple of arrays
+    shaped like f."""
+    return (1 - f, f)
+
+
+def bspline2_weights_1d(f):
+    """1D quadratic B-spline weights of the 3 nodes of an axis at f in [0.5, 1.5] past the first:
+    a tuple of arrays shaped like f."""
+    return (0.5 * (1.5 - f) ** 2, 0.75 - (f - 1) ** 2, 0.5 * (f - 0.5) ** 2)
+
+
+# shape -> (nodes per axis, base shift in cells, upper clip of the base (cells - clip), 1D weights)
+TENSOR_SHAPES = {"linear": (2, 0.0, 1, linear_weights_1d), "bspline2": (3, 0.5, 2, bspline2_weights_1d)}
+
+
 def linear_stencil(grid, x) -> Stencil:
     """Linear hat S_n(x) = prod_d (1 - |x_d - x_n,d| / h)."""
-    w1d = lambda f: jnp.stack([1 - f, f], 1)
+    w1d = lambda f: jnp.stack(linear_weights_1d(f), 1)
     dw1d = lambda f: jnp.stack([-jnp.ones_like(f), jnp.ones_like(f)], 1)
     return _tensor(grid, x, 2, 0.0, w1d, dw1d, 0, 1)
 
 
 def bspline2_stencil(grid, x) -> Stencil:
     """Quadratic B-spline (3 nodes per axis, base = floor(x / h - 1/2))."""
-    w1d = lambda f: jnp.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1) ** 2, 0.5 * (f - 0.5) ** 2], 1)
+    w1d = lambda f: jnp.stack(bspline2_weights_1d(f), 1)
     dw1d = lambda f: jnp.stack([f - 1.5, -2 * (f - 1), f - 0.5], 1)
     return _tensor(grid, x, 3, 0.5, w1d, dw1d, 0, 2)
 

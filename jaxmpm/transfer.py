@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.shapes import TENSOR_SHAPES, node_strides
 from jaxmpm.state import stencil_offsets
 
 
@@ -106,16 +107,13 @@ def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
     """The OffsetStencil of shape 'bspline2' (quadratic B-spline, 3 nodes per axis) or 'linear'
     (hat, 2 nodes per axis) at positions x (N, d); the same nodes and weights as
     `shapes.bspline2_stencil` / `shapes.linear_stencil`."""
-    width, shift, hi_clip = (3, 0.5, 2) if shape == "bspline2" else (2, 0.0, 1)
+    width, shift, hi_clip, weights_1d = TENSOR_SHAPES[shape]
     d = grid.dim
     xi = ((x - jnp.asarray(grid.origin, x.dtype)) / grid.h).T                           # (d, N)
     base = jnp.clip(jnp.floor(xi - shift).astype(jnp.int32), 0, (np.asarray(grid.cells) - hi_clip)[:, None])
     fx = xi - base
-    if width == 3:
-        w1 = jnp.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1) ** 2, 0.5 * (fx - 0.5) ** 2])
-    else:
-        w1 = jnp.stack([1 - fx, fx])
-    strides = np.array([int(np.prod(grid.nodes[k + 1:])) for k in range(d)], dtype=np.int32)
+    w1 = jnp.stack(weights_1d(fx))                                                      # (width, d, N)
+    strides = node_strides(grid.nodes)
     flat = sum(base[k] * int(strides[k]) for k in range(d))
     return OffsetStencil(w1=w1, fx=fx, base=flat, offsets=stencil_offsets(d, width), strides=strides, h=grid.h)
 
