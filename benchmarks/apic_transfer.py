@@ -42,7 +42,7 @@ def stencil_apic_update(lay, params, state, dt):
 
     scene = lay.scene
     dinv = 4.0 / scene.grid.h**2
-    m_min = _mass_floor(state)
+    m_min = _mass_floor(lay, state)
     st = stencil(scene, state.x)
     m, V = state.mass, state.volume
     affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress

@@ -10,6 +10,7 @@
 """
 from jaxmpm import batch as batch
 from jaxmpm import diagnostics as diagnostics
+from jaxmpm import distributed as distributed
 from jaxmpm.batch import ensemble as ensemble
 from jaxmpm.compile import jit as jit
 from jaxmpm import io as io

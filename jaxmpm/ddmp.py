@@ -98,7 +98,7 @@ def add_corners(c, dim):
         slab = jax.lax.dynamic_slice(out, start, (K,) + tuple(cells) + extra)
         return jax.lax.dynamic_update_slice(out, slab + jax.lax.dynamic_index_in_dim(c, j, 1 + dim, keepdims=False), start)
 
-    return jax.lax.fori_loop(0, 2**dim, add, jnp.zeros((K,) + nodes + extra, c.dtype))
+    return jax.lax.fori_loop(0, 2**dim, add, jnp.zeros_like(c, shape=(K,) + nodes + extra))    # like c: its device variance too
 
 
 def node_support(grid, axisymmetric: bool = False) -> np.ndarray:

@@ -24,7 +24,7 @@ def scatter_named(lay, st, parts):
     """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}."""
     names = list(parts)
     sizes = [parts[k].shape[-1] for k in names]
-    g = scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes)
+    g = lay.particle_sum(scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes))
     out, i = {}, 0
     for k, c in zip(names, sizes):
         out[k] = g[..., i:i + c]
@@ -69,7 +69,7 @@ def ddmp_operators(lay, st, nodal_volume, dtype, volume):
     """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
     particle volumes (N,) at stencil st."""
     scene = lay.scene
-    cells = cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype))
+    cells = lay.particle_sum(cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype)))
     return ddmp.build(scene.grid, nodal_volume.reshape(grid_shape(lay)),
                       cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric)
 

@@ -57,8 +57,8 @@ def _stack(states):
 
 
 @functools.lru_cache(maxsize=32)
-def _chunk_fn(scene, length):
-    step = make_step(scene)
+def _chunk_fn(scene, length, mesh=None):
+    step = _step_of(scene, mesh)
 
     @jit
     def run(params, state, t_stop, dt):
@@ -122,12 +122,20 @@ def _nested_scan(step, n, params, state, t_stop, dt):
     return jax.lax.scan(chunk, state, jnp.arange(a * b).reshape(a, b))[0]
 
 
+def _step_of(scene, mesh):
+    """The step of `scene`, or with a mesh its particle-sharded form (jaxmpm.distributed)."""
+    if mesh is None:
+        return make_step(scene)
+    from jaxmpm.distributed import make_sharded_step
+    return make_sharded_step(scene, mesh)
+
+
 @functools.lru_cache(maxsize=32)
-def _fixed_fn(scene, n_per_out, n_out, checkpoint):
+def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None):
     """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint: the steps of each
     interval under nested checkpointing (`_nested_scan`): reverse-mode memory ~ n_out + 2
     sqrt(n_per_out) states."""
-    step = make_step(scene)
+    step = _step_of(scene, mesh)
 
     @jit
     def run(params, state, times, dt):
@@ -185,7 +193,8 @@ def find_nonfinite(scene, state):
 
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
-             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False):
+             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False,
+             mesh=None):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -201,6 +210,9 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     debug: run the host driver's chunks under `jax.experimental.checkify` (slower): the run stops
       at the first step with a non-finite or out-of-grid particle, naming the step and time, or at
       the first primitive that makes a NaN, naming it and its source line.
+    mesh: a `jaxmpm.distributed.particle_mesh`: the particles split across its devices, the
+      nodal sums completed across them (`jaxmpm.distributed`); the state passed and the results
+      are in the scene's particle order. Not with restart_file or debug.
     """
     t_end = scene.t_end if t_end is None else float(t_end)
     n_out = scene.n_out if n_out is None else int(n_out)
@@ -214,6 +226,22 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
             raise ValueError(f"t_end = {t_end!r} is invalid: allowed > state.t = {float(state.t)} s")
         if dt is not None:
             check_dt(scene, params, state, float(dt))
+    shards = 1
+    if mesh is not None:
+        from jaxmpm import distributed
+        if restart_file is not None or debug:
+            raise ValueError("mesh is invalid with restart_file or debug: allowed mesh=None for those runs")
+        shards = distributed.mesh_size(mesh)
+        state = distributed.to_shards(scene, state, mesh)
+    final, history = _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk,
+                          restart_file, restart_every, debug, traced, mesh)
+    if mesh is None:
+        return final, history
+    return distributed.from_shards(scene, final, shards), distributed.from_shards(scene, history, shards, time_axis=True)
+
+
+def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk, restart_file, restart_every,
+         debug, traced, mesh):
     dtype = state.t.dtype
     dt_arr = None if dt is None else jnp.asarray(dt, dtype)
     if traced or n_steps is not None:
@@ -223,23 +251,23 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         n_per_out = max(1, math.ceil(int(n_steps) / n_out))
         t0 = state.t
         times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
-        final, hist = _fixed_fn(scene, n_per_out, n_out, bool(checkpoint))(params, state, times, dt_arr)
+        final, hist = _fixed_fn(scene, n_per_out, n_out, bool(checkpoint), mesh)(params, state, times, dt_arr)
         history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
         return final, history
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
         raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
     return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk,
-                        restart_file=restart_file, restart_every=restart_every, debug=debug)
+                        restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh)
 
 
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0, debug=False):
+                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None):
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = plan_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000))
-    run = _chunk_fn(scene, int(chunk))
+    run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
         checked = _checked_chunk_fn(scene, int(chunk))
 
@@ -276,7 +304,11 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                 n_chunks += 1
                 healthy, dt_cfl = health(params, state)
                 if not bool(healthy):
-                    msg = find_nonfinite(scene, state) or "a non-finite or out-of-grid particle"
+                    here = state
+                    if mesh is not None:
+                        from jaxmpm.distributed import from_shards, mesh_size
+                        here = from_shards(scene, state, mesh_size(mesh))
+                    msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
                     raise FloatingPointError(f"{scene.name}: {msg} (chunk {n_chunks} of {chunk} steps)")
                 if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
                     raise FloatingPointError(

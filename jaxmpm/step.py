@@ -38,13 +38,35 @@ class Layout:
     field: np.ndarray | None         # (N,) field index per particle, None with one field
     slices: tuple                    # per phase
     bc_mask: np.ndarray | None       # (n_nodes, d) 1 where a velocity component is free, None if no walls
+    axis_name: str | None = None     # the mesh axis the particles are split along (jaxmpm.distributed), or None
 
     @staticmethod
-    def of(scene) -> "Layout":
+    def of(scene, shards=1, axis_name=None) -> "Layout":
+        """The Layout of `scene`; with shards > 1, of one of `shards` equal parts of every phase's
+        particles (ceil(n / shards) of a phase of n: the per-device block of `jaxmpm.distributed`),
+        whose sums and maxima over particles are completed across the mesh axis `axis_name`."""
         K = scene.n_fields
-        return Layout(scene=scene, dim=scene.dim, n_fields=K, n_nodes=scene.grid.n_nodes,
-                      field=particle_fields(scene) if K > 1 else None,
-                      slices=phase_slices(scene), bc_mask=boundary_mask(scene))
+        local = [-(-(sl.stop - sl.start) // shards) for sl in phase_slices(scene)]
+        starts = np.concatenate([[0], np.cumsum(local)]).astype(int)
+        slices = tuple(slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:]))
+        field = np.concatenate([np.full(c, p.field, np.int32) for p, c in zip(scene.phases, local)]) if K > 1 else None
+        return Layout(scene=scene, dim=scene.dim, n_fields=K, n_nodes=scene.grid.n_nodes, field=field,
+                      slices=slices, bc_mask=boundary_mask(scene), axis_name=axis_name)
+
+    def particle_sum(self, x):
+        """A sum over particles (a scatter's nodal result) completed across the devices."""
+        return x if self.axis_name is None else jax.lax.psum(x, self.axis_name)
+
+    def particle_max(self, x):
+        """The maximum over particles of x (N, ...) (across the devices too), a scalar."""
+        m = jnp.max(x)
+        if self.axis_name is None:
+            return m
+        # pmax has no derivative: the value by pmax, the derivative that of the devices holding it
+        top = jax.lax.pmax(jax.lax.stop_gradient(m), self.axis_name)
+        here = m == top
+        return top + (jax.lax.psum(jnp.where(here, m - jax.lax.stop_gradient(m), 0.0), self.axis_name)
+                      / jax.lax.psum(here.astype(m.dtype), self.axis_name))
 
 
 def boundary_mask(scene) -> np.ndarray | None:
@@ -75,9 +97,9 @@ def _apply_bc(lay, v):
     return v if lay.bc_mask is None else v * jnp.asarray(lay.bc_mask, v.dtype)
 
 
-def _mass_floor(state):
+def _mass_floor(lay, state):
     eps = jnp.finfo(state.mass.dtype).eps
-    return jnp.max(state.mass) * eps**2
+    return lay.particle_max(state.mass) * eps**2
 
 
 def gravity_now(params, t):
@@ -95,11 +117,16 @@ def wave_speed(scene, params, state):
 
 def cfl_time_step(scene, params, state, cfl=None):
     """dt = CFL h / max_p (c_p + |v_p|) (PHYSICS 2.1), s."""
+    return _cfl_time_step(Layout.of(scene), params, state, cfl)
+
+
+def _cfl_time_step(lay, params, state, cfl=None):
     cfl = params.cfl if cfl is None else cfl
     v2 = jnp.sum(state.v * state.v, axis=-1)
     moving = v2 > 0
-    speed = wave_speed(scene, params, state) + jnp.where(moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0)  # finite grad at rest
-    return cfl * scene.grid.h / jnp.max(speed)
+    speed = (bulk_modulus_and_wave_speed(lay, params, state)[1]
+             + jnp.where(moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0))          # finite grad at rest
+    return cfl * lay.scene.grid.h / lay.particle_max(speed)
 
 
 # ----------------------------------------------------------------------------------- stages
@@ -149,8 +176,8 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
         I, p_amb, p_n = interface_force(lay, st, beta, state, g, dg, m_min)
         f = f + I
     if acc_p is not None:
-        f = f + scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
-                        lay.n_fields, lay.n_nodes)
+        f = f + lay.particle_sum(scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
+                                         lay.n_fields, lay.n_nodes))
     a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
@@ -192,7 +219,8 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     ddmp_on = lay.scene.shape == "ddmp"
     vol_n = None
     if ddmp_on or lay.scene.has_exchange:
-        vol_n = scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)[..., 0]
+        vol_n = lay.particle_sum(scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields,
+                                         lay.n_nodes))[..., 0]
     v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
     return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state))
 
@@ -228,7 +256,7 @@ def seed_update(lay, params, state, dt):
     """
     scene = lay.scene
     d = lay.dim
-    m_min = _mass_floor(state)
+    m_min = _mass_floor(lay, state)
     st = stencil(scene, state.x)                                                   # 1
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     g = particle_to_grid(lay, params, st, state, beta)                             # 2
@@ -260,7 +288,7 @@ def apic_update(lay, params, state, dt):
     scene = lay.scene
     d, h = lay.dim, scene.grid.h
     dinv = 4.0 / h**2
-    m_min = _mass_floor(state)
+    m_min = _mass_floor(lay, state)
     ost = offset_stencil(scene.grid, state.x, "bspline2")
     m, V = state.mass, state.volume
     affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
@@ -275,7 +303,7 @@ def apic_update(lay, params, state, dt):
         mom = mv + sum(affine[:, k] * dpos[k] for k in range(d))
         return jnp.concatenate([(w * m)[None], w * mom], 0)
 
-    g = scatter_by_offset(ost, contrib, d + 1, lay.n_nodes, m.dtype)[None]              # (1, n_nodes, 1 + d)
+    g = lay.particle_sum(scatter_by_offset(ost, contrib, d + 1, lay.n_nodes, m.dtype))[None]   # (1, n_nodes, 1 + d)
     v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
     if scene.damping is not None:
         v_n = v_n * jnp.exp(-params.damping * dt)
@@ -287,23 +315,27 @@ def apic_update(lay, params, state, dt):
         return v + wv, B + wv[:, None] * dpos[None]
 
     n = m.shape[0]
-    v, B = gather_by_offset(ost, v_n, accumulate, (jnp.zeros((d, n), m.dtype), jnp.zeros((d, d, n), m.dtype)))
+    v, B = gather_by_offset(ost, v_n, accumulate, (jnp.zeros_like(ost.fx), jnp.zeros_like(ost.fx, shape=(d, d, n))))
     v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
     moved = replace(state, x=state.x + dt * v, v=v, C=C)
     return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, C, dt))
 
 
-def make_step(scene):
+def make_step(scene, shards=1, axis_name=None):
     """Compose the pure step of `scene`: step(params, state, t_stop=inf, dt=None) -> state.
 
     dt defaults to the CFL step (PHYSICS 2.1); it is clipped so that t never passes t_stop, and a
     step with dt = 0 returns the state unchanged (so a fixed-length scan stays differentiable).
+    shards, axis_name: the step of one device's block of particles when every phase's particles
+    are split in `shards` equal parts along the mesh axis `axis_name` (run it under shard_map:
+    `jaxmpm.distributed.make_sharded_step`); scatters are summed and particle maxima taken
+    across that axis, the grid update is repeated on every device.
     """
-    lay = Layout.of(scene)
+    lay = Layout.of(scene, shards, axis_name)
     update = apic_update if scene.transfer == "apic" else seed_update
 
     def step(params, state, t_stop=jnp.inf, dt=None):
-        dt = cfl_time_step(scene, params, state) if dt is None else jnp.asarray(dt, state.t.dtype)
+        dt = _cfl_time_step(lay, params, state) if dt is None else jnp.asarray(dt, state.t.dtype)
         dt = jnp.clip(jnp.minimum(dt, t_stop - state.t), 0.0, None)
         active = dt > 0
         new = update(lay, params, state, dt)

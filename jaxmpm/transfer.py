@@ -138,7 +138,7 @@ def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
         w, dpos, node = _at_offset(ost, i)
         return out.at[:, node].add(contrib(w, dpos), mode="promise_in_bounds")
 
-    out = jax.lax.fori_loop(0, len(ost.offsets), add, jnp.zeros((n_channels, n_nodes), dtype))
+    out = jax.lax.fori_loop(0, len(ost.offsets), add, jnp.zeros_like(ost.fx, dtype, shape=(n_channels, n_nodes)))
     return out.T
 
 

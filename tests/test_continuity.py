@@ -114,7 +114,7 @@ def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     lay = S.Layout.of(scene)
     st = stencil(scene, s.x)
     beta = ddmp_beta(st.xi)
-    m_min = S._mass_floor(s)
+    m_min = S._mass_floor(lay, s)
     g = S.particle_to_grid(lay, params, st, s, beta)
     dg = nodal.ddmp_operators(lay, st, g["vol"][..., 0], s.mass.dtype, s.volume)
     I, _, p_n = M.interface_force(lay, st, beta, s, g, dg, m_min)

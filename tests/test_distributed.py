@@ -1,0 +1,162 @@
+"""One simulation with its particles split across devices (jaxmpm.distributed): the same results,
+gradients and batches as on one device. The two-device checks run in a subprocess with two host
+CPU devices (XLA_FLAGS=--xla_force_host_platform_device_count=2); a one-device mesh runs the
+same shard_map path in this process."""
+import dataclasses
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmpm
+from jaxmpm import distributed
+from jaxmpm.scene import Box, Grid, Phase, Scene
+
+TWO_DEVICE_SCRIPT = r"""
+import dataclasses, jax, jax.numpy as jnp, numpy as np
+import jaxmpm
+from jaxmpm import distributed
+from jaxmpm.scene import Box, Grid, Phase, Scene
+assert len(jax.devices()) == 2, jax.devices()
+mesh = distributed.particle_mesh()
+
+def same(a, b, what):
+    for name in ("x", "v", "volume", "stress", "energy", "damage", "eps_ps", "C"):
+        x, y = getattr(a, name), getattr(b, name)
+        if x is None:
+            continue
+        x, y = np.asarray(x), np.asarray(y)
+        scale = float(np.max(np.abs(y))) + 1e-30
+        if name == "C":                  # velocity gradients: on the scale of |v| / h (here round-off about 0)
+            scale = max(scale, float(np.max(np.abs(np.asarray(b.v)))) / scene.grid.h)
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-11 * scale, err_msg=f"{what}: {name}")
+    np.testing.assert_allclose(float(a.t), float(b.t), rtol=1e-12, err_msg=what)
+    print("equal:", what)
+
+# two velocity fields, DDMP, axisymmetric, exchange, interface forces and their transpose (E7),
+# the alpha closure, Mie-Grueneisen + Johnson-Cook + failure: the final state and the gradient
+# through the checkpointed fixed-length driver (CFL step each step)
+scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+params = jaxmpm.default_params(scene)
+s0 = jaxmpm.init_state(scene, params)
+n = jaxmpm.plan_steps(scene, params, s0, 4e-7)
+def momentum_and_heat(c_d, mesh):
+    p = dataclasses.replace(params, drag_coefficient=c_d)
+    fin, _ = jaxmpm.simulate(scene, p, s0, t_end=4e-7, n_out=1, n_steps=n, checkpoint=True, mesh=mesh)
+    return jnp.sum(fin.mass * fin.v[:, 1]) + jnp.sum(fin.mass * fin.energy), fin
+(v1, one), g1 = jax.value_and_grad(momentum_and_heat, has_aux=True)(jnp.asarray(1.0), None)
+(v2, two), g2 = jax.value_and_grad(momentum_and_heat, has_aux=True)(jnp.asarray(1.0), mesh)
+same(two, one, "debris cloud")
+assert float(g1) != 0.0
+np.testing.assert_allclose(float(g2), float(g1), rtol=1e-9)
+print("equal: gradient", float(g1), float(g2))
+
+# one field with the B-spline APIC step (offset-loop transfers), gravity, slip walls; an odd
+# particle count (filled up with one padding copy)
+scene = jaxmpm.load_scene("mpm88", n_grid=32)
+assert jaxmpm.state.phase_slices(scene)[0].stop % 2 == 1
+params = jaxmpm.default_params(scene)
+s0 = jaxmpm.init_state(scene, params)
+n = 50
+one = jaxmpm.simulate(scene, params, s0, t_end=n * 2e-4, n_out=1, n_steps=n, dt=2e-4)
+two = jaxmpm.simulate(scene, params, s0, t_end=n * 2e-4, n_out=1, n_steps=n, dt=2e-4, mesh=mesh)
+same(two[0], one[0], "mpm88 APIC")
+
+# 3D, DDMP, one field: two elastic blocks meet
+rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
+scene = Scene(grid=Grid(cells=(8, 8, 12), h=0.1), materials=(rock,),
+              phases=(Phase("a", "rock", Box((0.2, 0.2, 0.2), (0.6, 0.6, 0.5)), velocity=(0.0, 0.0, 20.0)),
+                      Phase("b", "rock", Box((0.2, 0.2, 0.6), (0.6, 0.6, 0.9)))), t_end=8e-3, n_out=1)   # they meet at 5 ms
+params = jaxmpm.default_params(scene)
+s0 = jaxmpm.init_state(scene, params)
+one = jaxmpm.simulate(scene, params, s0, progress=False)
+two = jaxmpm.simulate(scene, params, s0, progress=False, mesh=mesh)
+same(two[0], one[0], "3D DDMP blocks")
+assert float(jnp.max(jnp.abs(one[0].stress))) > 1e6          # they have met: stresses of MPa
+
+# a batch of Params (vmap) over the sharded step
+n = jaxmpm.plan_steps(scene, params, s0, 8e-3, safety=2.0)
+batch = jaxmpm.batch.sweep(params, cfl=[0.2, 0.3])
+run = lambda p, mesh: jaxmpm.simulate(scene, p, s0, t_end=8e-3, n_out=1, n_steps=n, mesh=mesh)[0]
+for k, (a, b) in enumerate(zip(jax.tree.leaves(jax.vmap(lambda p: run(p, mesh))(batch)),
+                               jax.tree.leaves(jax.vmap(lambda p: run(p, None))(batch)))):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-12 * float(np.max(np.abs(np.asarray(b)))))
+print("equal: vmap")
+"""
+
+
+def test_two_devices_give_the_one_device_results_gradients_and_batches():
+    """Debris cloud (two fields, every multi-field stage), its gradient and a vmapped batch; the
+    APIC step; a 3D DDMP scene: particles split across two host devices give the one-device
+    results to round-off (rtol 1e-9)."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    r = subprocess.run([sys.executable, "-c", TWO_DEVICE_SCRIPT], env=env, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for what in ("debris cloud", "gradient", "mpm88 APIC", "3D DDMP blocks", "vmap"):
+        assert f"equal: {what}" in r.stdout, r.stdout
+
+
+def two_blocks():
+    rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
+    return Scene(grid=Grid(cells=(20, 12), h=0.1), materials=(rock,),
+                 phases=(Phase("a", "rock", Box((0.2, 0.2), (0.8, 0.8)), velocity=(30.0, 0.0), field=0),
+                         Phase("b", "rock", Box((0.9, 0.2), (1.5, 0.8)), field=1)),
+                 drag=10.0, t_end=1e-3, n_out=2)
+
+
+def test_one_device_mesh_runs_the_sharded_step_and_gives_the_same_run():
+    scene = two_blocks()
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    mesh = distributed.particle_mesh(jax.devices()[:1])
+    a, ha = jaxmpm.simulate(scene, params, s0, progress=False)
+    b, hb = jaxmpm.simulate(scene, params, s0, progress=False, mesh=mesh)
+    for x, y in zip(jax.tree.leaves((a, ha)), jax.tree.leaves((b, hb))):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("shards", [2, 7])
+def test_shard_order_gives_each_device_a_part_of_every_phase_and_inverts(shards):
+    """Each device's block: ceil(n / shards) particles of each phase, phase after phase; the
+    copies that fill a phase up are marked and dropped on the way back."""
+    scene = two_blocks()
+    counts = [sl.stop - sl.start for sl in jaxmpm.state.phase_slices(scene)]
+    order, pad = distributed.shard_order(scene, shards)
+    c = [-(-n // shards) for n in counts]
+    assert len(order) == shards * sum(c) and pad.sum() == shards * sum(c) - sum(counts)
+    assert sorted(order[~pad].tolist()) == list(range(sum(counts)))
+    for j in range(shards):
+        block = order[j * sum(c):(j + 1) * sum(c)]
+        assert np.all(block[:c[0]] < counts[0]) and np.all(block[c[0]:] >= counts[0])
+    assert np.all(order[pad] == np.repeat([counts[0] - 1, sum(counts) - 1], [c[0] * shards - counts[0], c[1] * shards - counts[1]]))
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    perm = jax.tree.map(lambda a: a, distributed._per_particle(s0, lambda a: a[order], lambda a: a))
+    back = distributed.from_shards(scene, perm, shards)
+    assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves(back), jax.tree.leaves(s0)))
+
+
+def test_bad_meshes_and_unsupported_options_are_named():
+    scene = two_blocks()
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    from jax.sharding import Mesh
+    with pytest.raises(ValueError, match=r"mesh = .* is invalid: allowed a jax.sharding.Mesh with the one axis 'particles'"):
+        jaxmpm.simulate(scene, params, s0, progress=False, mesh=Mesh(np.array(jax.devices()[:1]), ("batch",)))
+    with pytest.raises(ValueError, match=r"mesh is invalid with restart_file or debug"):
+        jaxmpm.simulate(scene, params, s0, progress=False, debug=True, mesh=distributed.particle_mesh(jax.devices()[:1]))
+
+
+def test_unsharded_step_has_no_collectives():
+    """Without a mesh the step's program holds no collective (psum / pmax): the one-device path is
+    what it was."""
+    scene = two_blocks()
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    text = str(jax.make_jaxpr(jaxmpm.make_step(scene))(params, s0))
+    assert "psum" not in text and "pmax" not in text
+    assert dataclasses.is_dataclass(s0)
