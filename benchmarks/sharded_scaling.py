@@ -5,7 +5,7 @@ devices (psum) and the grid update is repeated on each. On the CPU, the devices 
 devices (`--host-devices N` sets XLA_FLAGS=--xla_force_host_platform_device_count=N before JAX
 starts): they share the machine's cores, so this measures the overhead of the split rather than a
 speed-up; on a machine with several GPUs it measures the scaling. Fixed dt, float32 unless --x64;
-interleaved repeats, fastest and median. Writes benchmarks/results/sharded_scaling.csv.
+interleaved repeats, fastest and median. Writes benchmarks/results/sharded_scaling_<scene>.csv.
 
     python benchmarks/sharded_scaling.py [--scene mpm88|debris_cloud] [--host-devices 2] [--steps 100]
 """
@@ -27,8 +27,10 @@ def main():
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--x64", action="store_true")
-    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "sharded_scaling.csv"))
+    ap.add_argument("--out", default=None, help="CSV path (default benchmarks/results/sharded_scaling_<scene>.csv)")
     args = ap.parse_args()
+    if args.out is None:
+        args.out = os.path.join(os.path.dirname(__file__), "results", f"sharded_scaling_{args.scene}.csv")
     if "jax" in sys.modules:
         raise SystemExit("run this script on its own: the device count is fixed when JAX starts")
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={args.host_devices}").strip()
