@@ -224,3 +224,39 @@ def test_gradient_of_a_feature_velocity_with_respect_to_c_h_is_finite(coarse_clo
 
     g = jax.grad(front_speed)(jnp.asarray(0.15))
     assert np.isfinite(float(g))
+
+
+@pytest.fixture(scope="module")
+def point_velocity_gradients():
+    """Two-field coarse cloud (C_d acts), 3 us, float64, at (C_d, C_h) = (1, 0.15): the Jacobian of
+    the three point velocities (km/s) with respect to (log C_d, log C_h) by reverse mode through
+    the checkpointed run, and central differences at steps 0.02 and 0.005."""
+    from calibration.model import CloudModel
+
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6)
+    theta = jnp.log(jnp.array([1.0, 0.15]))
+    J = np.asarray(jax.jit(jax.jacrev(model.velocities))(theta))
+    f = jax.jit(model.velocities)
+    fd = {eps: np.stack([(np.asarray(f(theta + eps * e)) - np.asarray(f(theta - eps * e))) / (2 * eps) for e in np.eye(2)], 1)
+          for eps in (0.02, 0.005)}
+    return J, fd
+
+
+@pytest.mark.slow
+def test_gradient_of_the_projectile_rear_with_respect_to_c_h_matches_differences(point_velocity_gradients):
+    """d v_4 / d log C_h (point 4, the rear of the projectile) by jax.grad within 5% of central
+    differences at two steps (measured 8.86e-4 km/s by AD against 8.72e-4 and 8.85e-4)."""
+    J, fd = point_velocity_gradients
+    assert np.all(np.isfinite(J))
+    for eps, d in fd.items():
+        assert J[2, 1] == pytest.approx(d[2, 1], rel=0.05), (eps, J[2, 1], d[2, 1])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 7): d v_4 / d log C_d is below the jumps of v_4 along C_d "
+                   "(AD -0.013 km/s against differences +0.0007, -0.056 at steps 0.02, 0.005): the response to the "
+                   "drag is a sawtooth of particle-level switches (see the calibration gradient test)")
+def test_gradient_of_the_projectile_rear_with_respect_to_c_d_matches_differences(point_velocity_gradients):
+    J, fd = point_velocity_gradients
+    for eps, d in fd.items():
+        assert J[2, 0] == pytest.approx(d[2, 0], rel=0.05), (eps, J[2, 0], d[2, 0])

@@ -175,18 +175,16 @@ def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 11): the coarse cloud's loss is piecewise smooth with many small "
-                   "jumps (failure switches set damage to 1 in one step; DDMP couples a particle to a node that "
-                   "has just received its first mass; the Johnson-Cook rate term's kink at 1/s; the short last step "
-                   "of each output recomputes the shock viscosity): central differences straddle the jumps that AD "
-                   "does not see. With failure off, a fixed dt, no rate term and a ramped DDMP coupling, AD and "
-                   "differences agreed to 0.1% in a probe")
+@pytest.mark.xfail(strict=True, reason="open (issues 7, 11): the coarse cloud's response to C_d is a sawtooth: smooth "
+                   "pieces a few 1e-3 wide in log C_d joined by jumps, so AD (the slope of a piece) and central "
+                   "differences (the slope across jumps) disagree: d loss / d log C_d = 1.00 by AD against 1.04, 0.91 "
+                   "and 0.83 by differences at steps 0.02, 0.005, 0.001. The jumps come from particle-level switches "
+                   "the drag moves in time, e.g. a molten projectile particle (Y = 0, so the Johnson-Cook failure "
+                   "triaxiality -P / sigma_eq saturates at +-10) whose damage starts to grow one step earlier when "
+                   "its pressure changes sign. The C_h component agrees (0.0331 both ways)")
 def test_gradient_of_the_fit_loss_matches_finite_differences():
-    """float64, two fields, 3 us: d loss / d log C_h within 5% of central differences at two step
-    sizes (0.05 and 0.005; measured 2.4% and 3.3%). d loss / d log C_d is at the noise level of
-    the loss at this time (the fields barely separate by 3 us): differences give -0.07 to +0.10
-    by step size, AD 0.12, against -0.84 for log C_h; the test bounds both below 20% of the C_h
-    component, so C_d is not identifiable from this window (the fit's standard error says so)."""
+    """float64, two fields, 3 us, at (C_d, C_h) = (1, 0.15): both components of d loss / d log
+    (C_d, C_h) within 5% of central differences at steps 0.02 and 0.005 (the issue's check)."""
     from calibration.fit import loss_fn
     from calibration.model import CloudModel
 
@@ -196,10 +194,9 @@ def test_gradient_of_the_fit_loss_matches_finite_differences():
     theta = jnp.log(jnp.array([1.0, 0.15]))
     g = np.asarray(jax.jit(jax.grad(lambda th: loss_fn(model.velocities, target)(th)[0]))(theta))
     assert g.dtype == np.float64 and np.all(np.isfinite(g))
-    for eps in (0.05, 0.005):
+    for eps in (0.02, 0.005):
         fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
-        assert g[1] == pytest.approx(fd[1], rel=0.05), (eps, g, fd)
-        assert abs(fd[0]) < 0.2 * abs(fd[1]) and abs(g[0]) < 0.2 * abs(g[1]), (eps, g, fd)
+        np.testing.assert_allclose(g, fd, rtol=0.05, err_msg=f"step {eps}")
 
 
 @pytest.mark.parametrize("argv, match", [
