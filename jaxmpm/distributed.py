@@ -13,9 +13,9 @@ physics is `jaxmpm.step` itself (`make_step(scene, shards, axis_name)`).
 Results equal the one-device run to round-off (sums in another order). The State a user passes
 and gets back is in the scene's particle order; inside, the particles are permuted so that each
 device's block holds a contiguous part of every phase (`shard_order`), and a phase whose count
-is not a multiple of the devices is filled up with copies of its last particle that carry 2^-100
-of its mass and volume (they move exactly as their twin; their share of the nodal sums is below
-round-off; they are dropped from the results).
+is not a multiple of the devices is filled up with copies of its last particle that carry eps^2 of
+its mass and volume (`padding_scale`: they move exactly as their twin, their share of the nodal
+sums is below round-off, and they are dropped from the results).
 
 Several hosts: call `jax.distributed.initialize()` on every host first (JAX's own setup), then
 build the mesh from `jax.devices()` (all hosts' devices); the code is the same. On the CPU, test
@@ -51,7 +51,12 @@ def mesh_size(mesh: Mesh) -> int:
     return int(mesh.devices.size)
 
 
-PAD_SCALE = 2.0**-100      # mass and volume of a padding copy relative to its twin: below any float's round-off
+def padding_scale(dtype) -> float:
+    """Mass and volume of a padding copy relative to its twin: eps^2 of the dtype (1.4e-14 in
+    float32, 4.9e-32 in float64), far below the round-off of any nodal sum the twin is part of,
+    and far above the smallest normal number for any particle volume a scene has (a smaller
+    scale would be flushed to zero in float32, giving the copy a density of 0 / 0)."""
+    return float(np.finfo(dtype).eps) ** 2
 
 
 @functools.lru_cache(maxsize=32)
@@ -89,10 +94,10 @@ def state_spec(state) -> State:
 def to_shards(scene, state, mesh):
     """The State in the sharded particle order, placed on the mesh (particles split, t replicated).
     Padding copies move exactly as their twins (all they gather is the same) and carry
-    PAD_SCALE of their mass and volume, so their share of every nodal sum is below round-off."""
+    `padding_scale` of their mass and volume, so their share of every nodal sum is below round-off."""
     order, pad = shard_order(scene, mesh_size(mesh))
     permuted = _per_particle(state, lambda a: a[order], lambda a: a)
-    scale = np.where(pad, PAD_SCALE, 1.0)
+    scale = np.where(pad, padding_scale(permuted.mass.dtype), 1.0)
     permuted = dataclasses.replace(permuted, mass=permuted.mass * scale.astype(permuted.mass.dtype),
                                    volume=permuted.volume * scale.astype(permuted.volume.dtype))
     specs = state_spec(state)

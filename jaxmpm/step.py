@@ -23,7 +23,7 @@ from jaxmpm.multifield import (continuity_volume_rate, exchange_force, interface
                                pressure_moments)
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
-from jaxmpm.state import particle_fields, phase_slices
+from jaxmpm.state import phase_slices
 from jaxmpm.transfer import gather, gather_by_offset, interpolate, offset_stencil, scatter, scatter_by_offset, stencil_outer
 
 
