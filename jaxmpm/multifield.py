@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, pressure
-from jaxmpm.nodal import nodal_stress_force, node_volume, particle_radius, scatter_named, stress_parts
+from jaxmpm.nodal import nodal_stress_force, node_volume, particle_radius, pressure_parts, scatter_named
 from jaxmpm.transfer import interpolate
 
 
@@ -89,8 +89,7 @@ def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
     dtype = state.mass.dtype
     w = _shared_weight(lay, dtype)
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
-    iso = p_p[:, None, None] * jnp.eye(lay.scene.material_dim, dtype=dtype)
-    I = nodal_stress_force(lay, dg, scatter_named(lay, st, stress_parts(st, state.volume, beta, iso, particle_radius(lay, state))))
+    I = nodal_stress_force(lay, dg, scatter_named(lay, st, pressure_parts(st, state.volume, beta, p_p, particle_radius(lay, state))))
     grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
     I = I - grad_p.reshape(I.shape)
     if w is None:
