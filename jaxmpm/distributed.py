@@ -45,6 +45,7 @@ def particle_mesh(devices=None) -> Mesh:
 
 
 def mesh_size(mesh: Mesh) -> int:
+    """The number of devices of a particle mesh; ValueError for any other mesh."""
     if not isinstance(mesh, Mesh) or mesh.axis_names != (AXIS,):
         raise ValueError(f"mesh = {mesh!r} is invalid: allowed a jax.sharding.Mesh with the one axis {AXIS!r} "
                          "(jaxmpm.distributed.particle_mesh)")
