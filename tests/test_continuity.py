@@ -208,3 +208,29 @@ def test_continuity_off_traces_no_transpose():
 
     on, off = (scatters(two_blocks(1.0, c, cells=40)) for c in ("transport", "off"))
     assert on > off
+
+
+@pytest.mark.parametrize("axisymmetric", [False, True])
+def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetric):
+    """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts) gives
+    the nodal forces of the general stress parts of p I to round-off, plane and axisymmetric."""
+    from jaxmpm import nodal
+    from jaxmpm import step as S
+    from jaxmpm.shapes import ddmp_beta, stencil
+
+    scene = (jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2) if axisymmetric
+             else two_blocks(1.0, "transport", cells=40))
+    params = jaxmpm.default_params(scene)
+    s = jaxmpm.init_state(scene, params)
+    lay = S.Layout.of(scene)
+    st = stencil(scene, s.x)
+    beta = ddmp_beta(st.xi)
+    g = S.particle_to_grid(lay, params, st, s, beta)
+    dg = nodal.ddmp_operators(lay, st, g["vol"][..., 0], s.mass.dtype, s.volume)
+    p = jnp.asarray(np.random.default_rng(1).normal(size=s.mass.shape)) * 1e9
+    radius = nodal.particle_radius(lay, s)
+    iso = p[:, None, None] * jnp.eye(scene.material_dim, dtype=p.dtype)
+    wide = nodal.nodal_stress_force(lay, dg, nodal.scatter_named(lay, st, nodal.stress_parts(st, s.volume, beta, iso, radius)))
+    narrow = nodal.nodal_stress_force(lay, dg, nodal.scatter_named(lay, st, nodal.pressure_parts(st, s.volume, beta, p, radius)))
+    assert float(jnp.abs(wide).max()) > 0
+    np.testing.assert_allclose(np.asarray(narrow), np.asarray(wide), rtol=1e-12, atol=1e-12 * float(jnp.abs(wide).max()))
