@@ -54,11 +54,13 @@ class Layout:
                       slices=slices, bc_mask=boundary_mask(scene), axis_name=axis_name)
 
     def particle_sum(self, x):
-        """A sum over particles (a scatter's nodal result) completed across the devices."""
+        """A sum over particles completed across the devices: x is a scatter's nodal result
+        (K, n_nodes, C) or (K, n_cells) from this device's particles; the same shape back."""
         return x if self.axis_name is None else jax.lax.psum(x, self.axis_name)
 
     def particle_max(self, x):
-        """The maximum over particles of x (N, ...) (across the devices too), a scalar."""
+        """The maximum over particles of x (N,) or (N, ...), across the devices too: a scalar in
+        x's units (here m/s for the CFL speeds, kg for the mass floor)."""
         m = jnp.max(x)
         if self.axis_name is None:
             return m
