@@ -4,7 +4,8 @@ Scene: a 2D impact of three elastic blocks (a striker, a plate, a backing block)
 2 x 2 particles per cell, DDMP, the default update; with 2 and 3 fields the exchange (E3, E14) and
 the interface forces (E6, E13) are on, with the continuity form (E7, the default) and without it
 (continuity = 'off', the E15 fit). Prints microseconds per step and per particle-step and the
-ratio to one field; writes benchmarks/results/multifield_cost.csv.
+ratio to one field; writes benchmarks/results/multifield_cost.csv and a bar chart of the ratios
+(multifield_cost.png, with the target of 2x one field marked).
 
     python benchmarks/multifield_cost.py [--steps 100] [--repeats 3] [--x64]
 """
@@ -57,6 +58,30 @@ def measure(n_fields, n_grid, steps, repeats, continuity="auto"):
                 ns_per_particle_step=1e9 * sec / steps / n, compile_s=compile_s, finite=finite)
 
 
+def plot(rows, path):
+    """Bars of the cost per particle-step relative to one field, by field count and continuity form."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    labels = [f"{r['fields']} field{'s' if r['fields'] > 1 else ''}" + (f"\n{r['continuity']}" if r["fields"] > 1 else "")
+              for r in rows]
+    ratios = [r["ratio_to_1_field"] for r in rows]
+    ax.bar(range(len(rows)), ratios, color=["0.6" if r["fields"] == 1 else "C0" for r in rows])
+    for i, v in enumerate(ratios):
+        ax.text(i, v, f"{v:.2f}", ha="center", va="bottom", fontsize="small")
+    ax.axhline(2.0, color="r", ls="--", lw=1, label="target: 3 fields <= 2x one field")
+    ax.set_xticks(range(len(rows)), labels, fontsize="small")
+    ax.set_ylabel("cost per particle-step / one field")
+    ax.set_title(f"multi-field DDMP step ({rows[0]['particles']} particles; {jax.devices()[0]}, {os.cpu_count()} CPUs)",
+                 fontsize="medium")
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-grid", type=int, default=128)
@@ -84,7 +109,9 @@ def main():
         for r in rows:
             w.writerow({**r, "device": str(jax.devices()[0]), "cpus": os.cpu_count(), "jax": jax.__version__,
                         "python": platform.python_version()})
-    print(f"wrote {a.out}")
+    png = os.path.splitext(a.out)[0] + ".png"
+    plot(rows, png)
+    print(f"wrote {a.out} and {png}")
 
 
 if __name__ == "__main__":

@@ -32,8 +32,9 @@ caches, memory and XLA_FLAGS do not leak between them; they run one after anothe
 Run:  python benchmarks/throughput.py                  # 2D, 128^2 grid, 500 steps
       python benchmarks/throughput.py --dim 3          # 3D, 64^3 grid, 100 steps
       python benchmarks/throughput.py --only jaxmpm --steps 200 --repeats 5
+      python benchmarks/throughput.py --replot benchmarks/results/throughput.csv   # PNG of a table
 Writes benchmarks/results/throughput.csv (2D) or throughput_3d.csv (3D; or --out) with device, CPU
-count, jax version and date.
+count, jax version and date, and a bar chart of the rates beside it (same name, .png).
 """
 from __future__ import annotations
 
@@ -202,6 +203,32 @@ def fmt(v, spec):
     return "" if v is None or v == "" else format(v, spec)
 
 
+def plot(rows, path):
+    """Horizontal bars of Mpart-steps/s per configuration (peers grey, jaxmpm blue), written to path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r.get("mpart_steps_per_s") not in (None, "")]
+    names = [r["config"] for r in rows]
+    rates = [float(r["mpart_steps_per_s"]) for r in rows]
+    colors = ["C0" if n.startswith("jaxmpm") else "0.6" for n in names]
+    fig, ax = plt.subplots(figsize=(7, 0.45 * len(rows) + 1.2))
+    y = range(len(rows))[::-1]
+    ax.barh(list(y), rates, color=colors)
+    for yi, r in zip(y, rates):
+        ax.text(r, yi, f" {r:.2f}", va="center", fontsize="small")
+    ax.set_yticks(list(y), names)
+    ax.set_xlabel("Mpart-steps/s (higher is faster)")
+    r0 = rows[0] if rows else {}
+    ax.set_title(f"mpm88 {r0.get('dim', '')}D, {r0.get('n_grid', '')}^{r0.get('dim', '')} grid, float32; "
+                 f"{r0.get('device', '')}, {r0.get('cpu_count', '')} CPUs", fontsize="medium")
+    ax.set_xlim(0, 1.15 * max(rates, default=1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dim", type=int, choices=(2, 3), default=2)
@@ -211,8 +238,16 @@ def main(argv=None):
     ap.add_argument("--only", choices=("jaxmpm", "peers"), default=None)
     ap.add_argument("--out", default=None, help="CSV to write (default results/throughput.csv in 2D, "
                     "results/throughput_3d.csv in 3D)")
+    ap.add_argument("--replot", default=None, metavar="CSV", help="only draw the PNG of a table this script wrote")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)   # child mode: one jaxmpm config
     a = ap.parse_args(argv)
+    if a.replot:
+        with open(a.replot, newline="") as f:
+            rows = list(csv.DictReader(f))
+        png = Path(a.replot).with_suffix(".png")
+        plot(rows, png)
+        print(f"wrote {png}")
+        return
     a.n_grid = a.n_grid or (128 if a.dim == 2 else 64)
     a.steps = a.steps or (500 if a.dim == 2 else 100)
 
@@ -255,7 +290,8 @@ def main(argv=None):
         w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    print(f"\nwrote {out}")
+    plot(rows, out.with_suffix(".png"))
+    print(f"\nwrote {out} and {out.with_suffix('.png')}")
 
 
 if __name__ == "__main__":
