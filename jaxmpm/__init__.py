@@ -11,11 +11,13 @@
 from jaxmpm import batch as batch
 from jaxmpm import diagnostics as diagnostics
 from jaxmpm import distributed as distributed
+from jaxmpm import features as features
 from jaxmpm.batch import ensemble as ensemble
 from jaxmpm.compile import jit as jit
 from jaxmpm import io as io
 from jaxmpm.materials import Material as Material
 from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params
+from jaxmpm import restart as restart
 from jaxmpm.scene import (Boundary as Boundary, Box as Box, Difference as Difference, Grid as Grid, Phase as Phase,
                           Scene as Scene, Sphere as Sphere)
 from jaxmpm.scenefile import load_scene as load_scene, scene_from_dict as scene_from_dict, scene_to_toml as scene_to_toml

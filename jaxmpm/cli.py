@@ -102,7 +102,8 @@ def cmd_run(args) -> int:
                        + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0))
         final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress,
                                          restart_file=str(rfile) if args.restart_every else None,
-                                         restart_every=args.restart_every or 1, debug=args.debug)
+                                         restart_every=args.restart_every or 1, debug=args.debug,
+                                         overwrite=args.overwrite)
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)

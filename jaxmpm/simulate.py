@@ -194,7 +194,7 @@ def find_nonfinite(scene, state):
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
              progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False,
-             mesh=None):
+             mesh=None, overwrite=False):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -206,7 +206,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
       as the square root of the steps per output, for about one extra forward pass (`_nested_scan`).
       chunk: steps per jitted chunk (host driver).
     restart_file: path of a restart file to save every `restart_every` chunks and at each output
-      (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically.
+      (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically. An
+      existing file there is refused (FileExistsError: resume it, or delete it) unless overwrite=True.
     debug: run the host driver's chunks under `jax.experimental.checkify` (slower): the run stops
       at the first step with a non-finite or out-of-grid particle, naming the step and time, or at
       the first primitive that makes a NaN, naming it and its source line.
@@ -226,6 +227,9 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
             raise ValueError(f"t_end = {t_end!r} is invalid: allowed > state.t = {float(state.t)} s")
         if dt is not None:
             check_dt(scene, params, state, float(dt))
+    if restart_file is not None:
+        from jaxmpm.io import check_new
+        check_new(restart_file, overwrite=overwrite)
     shards = 1
     if mesh is not None:
         from jaxmpm import distributed

@@ -71,6 +71,20 @@ def test_interrupted_write_keeps_the_previous_restart_file(small, tmp_path, monk
     assert [p.name for p in tmp_path.iterdir()] == ["run.restart.h5"]      # no temporary file left
 
 
+def test_an_existing_restart_file_is_never_overwritten_silently(small, tmp_path):
+    """simulate(restart_file=p) refuses a p that exists (a saved run one could resume) and leaves
+    it byte for byte as it was; overwrite=True replaces it."""
+    scene, params, s0 = small
+    path = tmp_path / "run.restart.h5"
+    jaxmpm.simulate(scene, params, s0, t_end=0.5, n_out=1, progress=False, restart_file=str(path))
+    before = path.read_bytes()
+    with pytest.raises(FileExistsError, match="run.restart.h5 exists: refusing to overwrite it"):
+        jaxmpm.simulate(scene, params, s0, t_end=0.25, n_out=1, progress=False, restart_file=str(path))
+    assert path.read_bytes() == before
+    jaxmpm.simulate(scene, params, s0, t_end=0.25, n_out=1, progress=False, restart_file=str(path), overwrite=True)
+    assert restart.load(path)["t_end"] == 0.25
+
+
 def test_restart_every_validated(small, tmp_path):
     scene, params, s0 = small
     with pytest.raises(ValueError, match=r"restart_every = 0 is invalid: allowed an integer >= 1"):
