@@ -10,7 +10,9 @@ exactly its single run's on the fixed-length driver (`simulate(..., n_steps=n)`)
 
 Where several devices exist (GPUs, or CPU devices from
 XLA_FLAGS=--xla_force_host_platform_device_count=N), the batch is split across them along its
-leading axis with `jax.sharding` (padded by repeating the last member, then trimmed).
+leading axis with `jax.sharding` (padded by repeating the last member, then trimmed); with
+several processes (`jax.distributed.initialize`), across all of theirs: every process runs the
+same call, and `jaxmpm.distributed.to_host` gathers the results.
 """
 from __future__ import annotations
 
@@ -118,7 +120,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     final, history = jit(jax.vmap(one))(params_batch, state)
     if shard and m != B:
         final, history = jax.tree.map(lambda a: a[:B], (final, history))
-    reached = np.asarray(final.t)
+    from jaxmpm.distributed import to_host
+    reached = to_host(final.t)                  # gathered where the batch spans several processes
     short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
     if short.size and not allow_short:
         raise RuntimeError(f"{scene.name}: member(s) {short.tolist()} reached only t = {reached[short].tolist()} s of "

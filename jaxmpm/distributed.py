@@ -17,9 +17,14 @@ is not a multiple of the devices is filled up with copies of its last particle t
 its mass and volume (`padding_scale`: they move exactly as their twin, their share of the nodal
 sums is below round-off, and they are dropped from the results).
 
-Several hosts: call `jax.distributed.initialize()` on every host first (JAX's own setup), then
-build the mesh from `jax.devices()` (all hosts' devices); the code is the same. On the CPU, test
-with `XLA_FLAGS=--xla_force_host_platform_device_count=2`.
+Several hosts (processes): call `jax.distributed.initialize(...)` in every process first (JAX's
+own setup; on CPU hosts, set `jax.config.update("jax_cpu_collectives_implementation", "gloo")`
+before it), then run the same program in every process: `particle_mesh()` takes all processes'
+devices. `simulate` returns the State replicated on every process (NumPy reads it as it is);
+`jaxmpm.ensemble` returns the batch split across the processes, and `to_host` gathers it to NumPy
+on every process (for plots and files). On one machine, test with two devices of
+one process (`XLA_FLAGS=--xla_force_host_platform_device_count=2`) or two processes on
+localhost (tests/test_distributed.py runs both).
 """
 from __future__ import annotations
 
@@ -50,6 +55,19 @@ def mesh_size(mesh: Mesh) -> int:
         raise ValueError(f"mesh = {mesh!r} is invalid: allowed a jax.sharding.Mesh with the one axis {AXIS!r} "
                          "(jaxmpm.distributed.particle_mesh)")
     return int(mesh.devices.size)
+
+
+def to_host(tree):
+    """Every array of `tree` as a NumPy array in this process. Arrays spread over several
+    processes' devices (after `jax.distributed.initialize`) are gathered from all of them
+    (`jax.experimental.multihost_utils.process_allgather`): every process must call this
+    together. Other arrays are copied as they are."""
+    def host(a):
+        if isinstance(a, jax.Array) and not a.is_fully_addressable:
+            from jax.experimental import multihost_utils
+            return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+        return np.asarray(a)
+    return jax.tree.map(host, tree)
 
 
 def padding_scale(dtype) -> float:

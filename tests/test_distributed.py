@@ -125,6 +125,102 @@ def test_two_devices_give_the_one_device_gradient():
     assert "equal: debris cloud" in out and "equal: gradient" in out, out
 
 
+TWO_PROCESS_SCRIPT = r"""
+import sys
+import jax
+pid, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+jax.config.update("jax_cpu_collectives_implementation", "gloo")
+jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=pid, initialization_timeout=120)
+assert jax.process_count() == 2 and len(jax.devices()) == 2 and len(jax.local_devices()) == 1, jax.devices()
+import numpy as np
+import jaxmpm
+from jaxmpm import distributed
+from jaxmpm.scene import Box, Grid, Phase, Scene
+mesh = distributed.particle_mesh()
+results = {}
+# the two-field debris cloud on the host driver (CFL step, two outputs): every multi-field stage
+scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+params = jaxmpm.default_params(scene)
+s0 = jaxmpm.init_state(scene, params)
+final, history = jaxmpm.simulate(scene, params, s0, t_end=2e-7, n_out=2, progress=False, mesh=mesh)
+assert not final.x.is_fully_addressable           # on both processes' devices
+final, history = distributed.to_host((final, history))
+for name in ("x", "v", "stress", "energy", "damage"):
+    results["cloud_" + name] = getattr(final, name)
+results["cloud_history_x"] = history.x
+results["cloud_t"] = final.t
+# a batch split across the two processes
+rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
+blocks = Scene(grid=Grid(cells=(20, 12), h=0.1), materials=(rock,),
+               phases=(Phase("a", "rock", Box((0.2, 0.2), (0.8, 0.8)), velocity=(30.0, 0.0), field=0),
+                       Phase("b", "rock", Box((0.9, 0.2), (1.5, 0.8)), field=1)),
+               drag=10.0, t_end=1e-3, n_out=2)
+bp = jaxmpm.default_params(blocks)
+final, _ = jaxmpm.ensemble(blocks, jaxmpm.batch.sweep(bp, drag_coefficient=[3.0, 30.0, 300.0, 3000.0]))
+assert not final.v.is_fully_replicated            # split across the processes
+final = distributed.to_host(final)
+results["batch_v"], results["batch_x"] = final.v, final.x
+# a particle leaving the grid: the host driver names it, gathered from both processes
+fast = Scene(grid=Grid(cells=(10, 10), h=0.1), materials=(rock,),
+             phases=(Phase("block", "rock", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
+fp = jaxmpm.default_params(fast)
+try:
+    jaxmpm.simulate(fast, fp, jaxmpm.init_state(fast, fp), progress=False, mesh=mesh)
+except FloatingPointError as e:
+    results["error"] = np.array(str(e))
+if pid == 0:
+    np.savez(out, **results)
+print("process", pid, "done")
+"""
+
+
+def free_port():
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_give_the_one_process_results(tmp_path):
+    """Several hosts: two processes on localhost, joined by `jax.distributed.initialize` (CPU
+    collectives over gloo), one device each. The particle-split two-field debris cloud and a
+    batch split across the processes give this process's one-device results to round-off, and a
+    particle that leaves the grid is named as on one device."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env.update(JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    out, port = tmp_path / "two_processes.npz", str(free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", TWO_PROCESS_SCRIPT, str(pid), port, str(out)], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for pid in (0, 1)]
+    try:
+        logs = [p.communicate(timeout=600) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for p, (o, e) in zip(procs, logs):
+        assert p.returncode == 0, e[-3000:]
+    got = np.load(out)
+
+    scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+    params = jaxmpm.default_params(scene)
+    final, history = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), t_end=2e-7, n_out=2,
+                                     progress=False)
+    assert float(got["cloud_t"]) == pytest.approx(float(final.t), rel=1e-12)
+    for name in ("x", "v", "stress", "energy", "damage"):
+        ref = np.asarray(getattr(final, name))
+        np.testing.assert_allclose(got["cloud_" + name], ref, rtol=1e-9, atol=1e-11 * (np.max(np.abs(ref)) + 1e-30),
+                                   err_msg=name)
+    np.testing.assert_allclose(got["cloud_history_x"], np.asarray(history.x), rtol=1e-12, atol=1e-15)
+    assert np.max(np.abs(np.asarray(final.v[:, 1]) - np.asarray(history.v[0, :, 1]))) > 100.0   # the plate was hit
+
+    blocks = two_blocks()
+    bp = jaxmpm.default_params(blocks)
+    ref, _ = jaxmpm.ensemble(blocks, jaxmpm.batch.sweep(bp, drag_coefficient=[3.0, 30.0, 300.0, 3000.0]), shard=False)
+    np.testing.assert_allclose(got["batch_v"], np.asarray(ref.v), rtol=1e-9, atol=1e-11 * float(np.max(np.abs(ref.v))))
+    np.testing.assert_allclose(got["batch_x"], np.asarray(ref.x), rtol=1e-12)
+    assert not np.allclose(got["batch_v"][0], got["batch_v"][2])            # the members differ
+    assert "particle" in str(got["error"]) and "of phase 'block' left the grid" in str(got["error"])
+
+
 def two_blocks():
     rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
     return Scene(grid=Grid(cells=(20, 12), h=0.1), materials=(rock,),
