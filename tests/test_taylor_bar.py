@@ -7,7 +7,13 @@ the same rods at 130 and 146 m/s: 0.770 and 0.736 L0).
 Code verification (`material="steel_42crmo4"`): a Johnson-Cook 42CrMo4 steel rod, L0 = 32.4 mm,
 D0 = 6.4 mm, at 287 m/s on a frictionless rigid wall, computed by two finite element codes
 (DynELA's documentation, "DynELA impact sample cases"): final length 26.52 mm (DynELA) and
-26.56 mm (Abaqus/Explicit), footprint diameter 11.15 and 11.16 mm."""
+26.56 mm (Abaqus/Explicit), footprint diameter 11.15 and 11.16 mm.
+
+Copper rod against the widely reproduced computation (`material="copper_bilinear"`): Wilkins &
+Guinan's bilinear J2 copper bar, L0 = 32.4 mm, D0 = 6.4 mm, at 227 m/s on a frictionless rigid
+wall: at 80 us 21.42 mm long with an impact-face radius of 7.22 mm, converged in mesh size
+(Sierra/SolidMechanics and Carina, tabulated in Carina.jl's benchmark/tet15-p1/taylor/README.md;
+Foulk et al. 2021)."""
 import functools
 import re
 
@@ -23,6 +29,7 @@ L0 = 25.4e-3
 L_OVER_L0_MEASURED = {130.0: 0.770, 146.0: 0.736, 190.0: 0.638}     # Johnson & Cook 1983 via Zerilli & Armstrong 1987
 
 
+BILINEAR_CONVERGED = (21.42e-3, 7.22e-3)       # (L_f, face radius) in m at 80 us
 STEEL_CODES = {"DynELA": (26.52e-3, 11.15e-3), "Abaqus/Explicit": (26.56e-3, 11.16e-3)}   # (L_f, D_f) in m
 
 
@@ -91,8 +98,24 @@ def test_johnson_cook_steel_rod_matches_two_finite_element_codes():
     assert float(jaxmpm.diagnostics.kinetic_energy(final)) < 0.02 * float(jaxmpm.diagnostics.kinetic_energy(s0))
 
 
+def test_bilinear_copper_bar_matches_the_converged_reference_at_the_default_resolution():
+    """The copper bar of Wilkins & Guinan at the default resolution 1 (4040 particles, about 10 s):
+    final length within 1% of the converged 21.42 mm (measured 21.45 mm; 21.52 and 21.46 mm at
+    resolutions 0.5 and 2) and impact-face radius within 2% of 7.22 mm (measured 7.26 mm; 7.17 and
+    7.26 mm). Perfectly plastic (B = 0) it ends 20.88 mm long with a 8.38 mm radius and fails
+    both; energy is conserved and the bar is at rest."""
+    scene, s0, final = run(1.0, material="copper_bilinear")
+    assert scene.materials[0].key == "copper_bilinear" and scene.phases[0].velocity == (0.0, -227.0)
+    L, D = measured(scene, final)
+    print(f"taylor_bar copper_bilinear: L_f = {L * 1e3:.3f} mm, face radius {D / 2 * 1e3:.3f} mm")
+    assert L == pytest.approx(BILINEAR_CONVERGED[0], rel=0.01)
+    assert D / 2 == pytest.approx(BILINEAR_CONVERGED[1], rel=0.02)
+    assert energy(final) == pytest.approx(energy(s0), rel=0.005)
+    assert float(jaxmpm.diagnostics.kinetic_energy(final)) < 0.02 * float(jaxmpm.diagnostics.kinetic_energy(s0))
+
+
 def test_taylor_bar_refuses_an_unknown_material():
-    with pytest.raises(ValueError, match=re.escape("material = 'steel' is invalid: allowed copper_ofhc | steel_42crmo4")):
+    with pytest.raises(ValueError, match=re.escape("material = 'steel' is invalid: allowed copper_ofhc | steel_42crmo4 | copper_bilinear")):
         jaxmpm.load_scene("taylor_bar", material="steel")
 
 

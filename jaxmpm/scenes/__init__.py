@@ -23,7 +23,8 @@ BUILTINS = {
     "mpm88": Builtin(basic.mpm88, "the peers' benchmark: 2D weakly compressible fluid, B-spline APIC, 128^2 grid"),
     "debris_cloud": Builtin(impact.debris_cloud, "Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric; partly validated)"),
     "taylor_bar": Builtin(impact.taylor_bar, "OFHC copper rod on a rigid wall at 190 m/s (2D axisymmetric; Johnson & Cook 1983; "
-                          "--opt material=steel_42crmo4: the Johnson-Cook steel verification case)"),
+                          "--opt material=steel_42crmo4 | copper_bilinear: the Johnson-Cook steel and "
+                          "bilinear copper verification cases)"),
     "taylor_brittle": Builtin(impact.taylor_brittle, "brittle (Maxwell, damage) rod on a rigid wall at 20 m/s: cracks (2D axisymmetric)"),
     "projectile_concrete": Builtin(penetration.projectile_concrete,
                                    "steel projectile through water (or air: --opt fluid=air) into concrete at 500 m/s (2D axisymmetric)"),

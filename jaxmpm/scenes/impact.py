@@ -86,7 +86,8 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
 TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED = 25.4e-3, 7.62e-3, 190.0     # m, m, m/s
 # the Johnson-Cook steel rod of the code-verification case: L0, D0 in m, impact speed in m/s
 TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED = 32.4e-3, 6.4e-3, 287.0
-TAYLOR_MATERIALS = ("copper_ofhc", "steel_42crmo4")
+# the bilinear J2 copper bar of Wilkins & Guinan's benchmark: L0, D0 in m, impact speed in m/s
+TAYLOR_BILINEAR_LENGTH, TAYLOR_BILINEAR_DIAMETER, TAYLOR_BILINEAR_SPEED = 32.4e-3, 6.4e-3, 227.0
 
 
 def taylor_steel_material():
@@ -105,14 +106,38 @@ def taylor_steel_material():
                          epsdot0=1.0, m=1.1, T_room=293.15, T_melt=1813.15, cp=460.0)
 
 
+def taylor_bilinear_copper_material():
+    """The copper of the bilinear Taylor-bar benchmark (Wilkins & Guinan 1973; computed since by
+    many codes, e.g. Simo 1992, Zienkiewicz et al. 1998, Foulk et al. 2021): rho0 = 8930 kg/m^3,
+    E = 117 GPa, nu = 0.35, J2 with initial yield stress 400 MPa and a linear isotropic hardening
+    modulus of 100 MPa, rate- and temperature-independent; linear volumetric response
+    (K = E / (3 (1 - 2 nu))). Written as the Johnson-Cook yield stress with A = 400 MPa,
+    B = 100 MPa, n = 1, C = 0."""
+    from jaxmpm.materials import Material
+
+    E, nu = 117e9, 0.35
+    return Material.make("copper_bilinear", "linear+johnson_cook", rho0=8930.0, K=E / (3 * (1 - 2 * nu)),
+                         G=E / (2 * (1 + nu)), A=400e6, B=100e6, n=1.0, C=0.0, epsdot0=1.0)
+
+
+TAYLOR_CASES = {   # material -> (L0, D0, speed, material builder or library key)
+    "copper_ofhc": (TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED, None),
+    "steel_42crmo4": (TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED, taylor_steel_material),
+    "copper_bilinear": (TAYLOR_BILINEAR_LENGTH, TAYLOR_BILINEAR_DIAMETER, TAYLOR_BILINEAR_SPEED,
+                        taylor_bilinear_copper_material),
+}
+
+
 def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: float | None = None,
                diameter: float | None = None, t_end: float = 80e-6, material: str = "copper_ofhc") -> Scene:
     """Taylor impact: a metal rod hits a rigid wall end-on. `material` "copper_ofhc" (default): the
     cylinder-impact test of Johnson & Cook 1983 for their copper constants (L0 = 25.4 mm,
     D0 = 7.62 mm, 190 m/s), compared with the experiment. "steel_42crmo4": a code-verification
     case with a Johnson-Cook steel (`taylor_steel_material`; L0 = 32.4 mm, D0 = 6.4 mm, 287 m/s,
-    frictionless wall, 80 us), compared with two finite element codes. `speed`, `length` and
-    `diameter` default to the chosen case's.
+    frictionless wall, 80 us), compared with two finite element codes. "copper_bilinear": the
+    widely reproduced bilinear copper bar of Wilkins & Guinan (`taylor_bilinear_copper_material`;
+    L0 = 32.4 mm, D0 = 6.4 mm, 227 m/s, frictionless wall, 80 us), compared with converged
+    finite element results. `speed`, `length` and `diameter` default to the chosen case's.
 
     Geometry (2D axisymmetric, r >= 0, z along the rod): the rod stands on the wall z = 0 (a slip
     wall: frictionless, rigid) and moves along -z at `speed`; the grid spans r in [0, 1.4 D0] and
@@ -141,15 +166,25 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
     Measured here: L_f = 26.46, 26.44 mm and footprint 11.56, 11.59 mm at resolutions 0.5 and 1
     (1010 and 4040 particles): the length within 0.4% of both codes, the footprint 3.6% wider
     (2.2% wider when 90% of the internal energy is counted as heat, as the reference does).
-    With the same model kind jaxmpm reproduces the finite element codes, so the copper rod's 6%
+
+    Bilinear copper reference (computed; J2 with linear hardening, no rate or temperature): at
+    80 us the bar is 21.42 mm long with an impact-face radius of 7.22 mm, converged in mesh size by
+    Sierra/SolidMechanics and Carina (composite and TET15 tetrahedra: 21.42-21.43 mm, 7.22-7.23 mm,
+    tabulated in Carina.jl's benchmark/tet15-p1/taylor/README.md) and by Foulk et al. 2021 (7.22 mm);
+    Simo 1992 and Zienkiewicz et al. 1998 give 7.12 and 7.11 mm. Measured here (float64, half a
+    particle spacing added at each free face): L_f = 21.52, 21.45, 21.46 mm and face radius 7.17,
+    7.26, 7.26 mm at resolutions 0.5, 1 and 2 (1010, 4040, 16200 particles): the length within
+    0.2% and the radius within 0.6% of the converged values at resolution 1.
+
+    With the same model kinds jaxmpm reproduces the finite element codes, so the copper rod's 6%
     points to the Johnson-Cook copper constants against the experiment rather than to the method.
     """
-    if material not in TAYLOR_MATERIALS:
-        raise ValueError(f"taylor_bar: material = {material!r} is invalid: allowed {' | '.join(TAYLOR_MATERIALS)}")
-    steel = material == "steel_42crmo4"
-    speed = (TAYLOR_STEEL_SPEED if steel else TAYLOR_SPEED) if speed is None else speed
-    length = (TAYLOR_STEEL_LENGTH if steel else TAYLOR_LENGTH) if length is None else length
-    diameter = (TAYLOR_STEEL_DIAMETER if steel else TAYLOR_DIAMETER) if diameter is None else diameter
+    if material not in TAYLOR_CASES:
+        raise ValueError(f"taylor_bar: material = {material!r} is invalid: allowed {' | '.join(TAYLOR_CASES)}")
+    L0, D0, v0, build = TAYLOR_CASES[material]
+    speed = v0 if speed is None else speed
+    length = L0 if length is None else length
+    diameter = D0 if diameter is None else diameter
     for name, value in (("resolution", resolution), ("speed", speed), ("length", length), ("diameter", diameter),
                         ("t_end", t_end)):
         if not (isinstance(value, (int, float)) and 0 < value < float("inf")):
@@ -160,8 +195,8 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
                          f"rod's radius: allowed >= 3 cells, i.e. resolution >= 0.3")
     n_r = max(4, int(round(1.4 * diameter / h)))
     n_z = int(round(length / h)) + 3
-    mat = taylor_steel_material() if steel else library_material("copper_ofhc", model="mie_gruneisen+johnson_cook_thermal")
-    what = "42CrMo4 steel" if steel else "OFHC copper"
+    mat = library_material("copper_ofhc", model="mie_gruneisen+johnson_cook_thermal") if build is None else build()
+    what = {"copper_ofhc": "OFHC copper", "steel_42crmo4": "42CrMo4 steel", "copper_bilinear": "bilinear copper"}[material]
     return Scene(
         name="taylor_bar", description=f"{what} rod on a rigid wall at {speed:g} m/s (2D axisymmetric)",
         grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, 0.0)), axisymmetric=True, materials=(mat,),
