@@ -230,7 +230,7 @@ def test_gradient_of_a_feature_velocity_with_respect_to_c_h_is_finite(coarse_clo
 def point_velocity_gradients():
     """Two-field coarse cloud (C_d acts), 3 us, float64, at (C_d, C_h) = (1, 0.15): the Jacobian of
     the three point velocities (km/s) with respect to (log C_d, log C_h) by reverse mode through
-    the checkpointed run, and central differences at steps 0.02 and 0.005."""
+    the checkpointed run, and central differences at steps 0.02, 0.005 and 1e-6."""
     from calibration.model import CloudModel
 
     model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6)
@@ -238,8 +238,20 @@ def point_velocity_gradients():
     J = np.asarray(jax.jit(jax.jacrev(model.velocities))(theta))
     f = jax.jit(model.velocities)
     fd = {eps: np.stack([(np.asarray(f(theta + eps * e)) - np.asarray(f(theta - eps * e))) / (2 * eps) for e in np.eye(2)], 1)
-          for eps in (0.02, 0.005)}
+          for eps in (0.02, 0.005, 1e-6)}
     return J, fd
+
+
+@pytest.mark.slow
+def test_gradient_of_the_point_velocities_matches_small_step_differences(point_velocity_gradients):
+    """The whole Jacobian of the three point velocities with respect to (log C_d, log C_h) by
+    reverse mode through the checkpointed run, against central differences at step 1e-6: within
+    5% (the issue's bound; measured within 1e-4, e.g. d v_4 / d log C_d -0.012645 by AD and by
+    differences, d v_1 / d log C_d -1.17886 and -1.17885). At this step the differences see the
+    smooth piece AD differentiates; at steps of 1e-3 and more they also see the jumps of the
+    response to C_d (the strict xfail below)."""
+    J, fd = point_velocity_gradients
+    np.testing.assert_allclose(J, fd[1e-6], rtol=0.05)
 
 
 @pytest.mark.slow
@@ -248,15 +260,17 @@ def test_gradient_of_the_projectile_rear_with_respect_to_c_h_matches_differences
     differences at two steps (measured 8.86e-4 km/s by AD against 8.72e-4 and 8.85e-4)."""
     J, fd = point_velocity_gradients
     assert np.all(np.isfinite(J))
-    for eps, d in fd.items():
-        assert J[2, 1] == pytest.approx(d[2, 1], rel=0.05), (eps, J[2, 1], d[2, 1])
+    for eps in (0.02, 0.005):
+        assert J[2, 1] == pytest.approx(fd[eps][2, 1], rel=0.05), (eps, J[2, 1], fd[eps][2, 1])
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 7): d v_4 / d log C_d is below the jumps of v_4 along C_d "
-                   "(AD -0.013 km/s against differences +0.0007, -0.056 at steps 0.02, 0.005): the response to the "
-                   "drag is a sawtooth of particle-level switches (see the calibration gradient test)")
+@pytest.mark.xfail(strict=True, reason="open (issue 7): at steps of 0.02 and 0.005 in log C_d the differences cross "
+                   "jumps of v_4 (AD -0.0126 km/s against +0.0007 and -0.056): the response to the drag is smooth "
+                   "pieces about 1e-3 wide joined by particle-level switches the drag moves in time, e.g. a particle "
+                   "entering a cell whose far node has no other mass of its field (traced at step 72: that node's "
+                   "velocity enters the DDMP velocity gradient at once). At step 1e-6 AD matches (test above)")
 def test_gradient_of_the_projectile_rear_with_respect_to_c_d_matches_differences(point_velocity_gradients):
     J, fd = point_velocity_gradients
-    for eps, d in fd.items():
-        assert J[2, 0] == pytest.approx(d[2, 0], rel=0.05), (eps, J[2, 0], d[2, 0])
+    for eps in (0.02, 0.005):
+        assert J[2, 0] == pytest.approx(fd[eps][2, 0], rel=0.05), (eps, J[2, 0], fd[eps][2, 0])
