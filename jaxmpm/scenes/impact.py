@@ -120,7 +120,7 @@ def taylor_bilinear_copper_material():
                          G=E / (2 * (1 + nu)), A=400e6, B=100e6, n=1.0, C=0.0, epsdot0=1.0)
 
 
-TAYLOR_CASES = {   # material -> (L0, D0, speed, material builder or library key)
+TAYLOR_CASES = {   # material -> (L0 in m, D0 in m, speed in m/s, material builder; None: the library's)
     "copper_ofhc": (TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED, None),
     "steel_42crmo4": (TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED, taylor_steel_material),
     "copper_bilinear": (TAYLOR_BILINEAR_LENGTH, TAYLOR_BILINEAR_DIAMETER, TAYLOR_BILINEAR_SPEED,
@@ -144,7 +144,7 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
     z in [0, L0 + 2 cells], cells of D0 / 20 / resolution (10 across the rod's radius at
     resolution 1), 2 x 2 particles per cell. Phase: `copper_ofhc` from the library with J2
     plasticity and Johnson-Cook hardening with thermal softening (Mie-Grueneisen EOS; no failure
-    model: the test does not break the rod), or the steel above. Effects: artificial viscosity
+    model: the test does not break the rod), or the steel or the bilinear copper above. Effects: artificial viscosity
     (0.5, 2.0).
     Measures: final length (top of the rod) and footprint diameter (twice the largest radius of the
     material within one cell of the wall) at t_end, when the rod has come to rest.
