@@ -259,6 +259,15 @@ def test_contact_onset_is_max_outside_its_band_and_smooth_inside():
     assert 0.6 * p_on < float(jnp.max(jnp.abs(defect))) <= 0.64 * p_on
 
 
+def coarse_cloud_dt():
+    """Half the initial CFL step (s) of the coarse two-field debris cloud (benchmarks/grad_cost.py's dt)."""
+    from jaxmpm.step import cfl_time_step
+
+    probe = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+    p0 = jaxmpm.default_params(probe)
+    return 0.5 * float(cfl_time_step(probe, p0, jaxmpm.init_state(probe, p0)))
+
+
 def test_a_one_ulp_change_stays_one_ulp_when_the_fields_meet():
     """The coarse two-field debris cloud, float64, fixed dt: one particle's velocity changed in its
     last places. Before the impact the two fields share nodes at a common pressure that is the
@@ -267,11 +276,7 @@ def test_a_one_ulp_change_stays_one_ulp_when_the_fields_meet():
     where the sign flips depends on the round-off of the compiled program, so a bare max can pass
     by luck elsewhere, not here). With the smooth onset it stays below 1e-9 m/s over 150 steps
     (measured 1e-11 m/s over 300)."""
-    from jaxmpm.step import cfl_time_step
-
-    probe = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
-    p0 = jaxmpm.default_params(probe)
-    dt = 0.5 * float(cfl_time_step(probe, p0, jaxmpm.init_state(probe, p0)))
+    dt = coarse_cloud_dt()
     scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=300 * dt)   # grad_cost's scene
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
@@ -295,11 +300,7 @@ def test_checkpointed_gradient_runs_the_same_trajectory_as_the_forward_run():
     forward mode. The reverse run's value equals the forward run's to 1e-12 and both gradients
     agree to 1e-9. With a bare max(p, 0) in the continuity form the recomputed run took other
     branches: its value differed by 5e-6 and d/d log C_h by 25% (4.19e-9 against 3.34e-9)."""
-    from jaxmpm.step import cfl_time_step
-
-    probe = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
-    p0 = jaxmpm.default_params(probe)
-    dt = 0.5 * float(cfl_time_step(probe, p0, jaxmpm.init_state(probe, p0)))
+    dt = coarse_cloud_dt()
     n = 200
     scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=n * dt)
     params = jaxmpm.default_params(scene)
