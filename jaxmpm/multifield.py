@@ -87,7 +87,8 @@ def onset_pressure(theta, kappa):
 
 def contact_onset(p, p_on):
     """max(p, 0) with a smooth onset below zero: p r(1 + p / p_on), r(u) = u^2 (3 - 2 u) on
-    [0, 1] (0 below, 1 above). It is p for p >= 0 and 0 for p <= -p_on, continuous with its
+    [0, 1] (0 below, 1 above); p, p_on in Pa, broadcastable arrays (e.g. (n_nodes,)), result
+    of p's shape in Pa. It is p for p >= 0 and 0 for p <= -p_on, continuous with its
     derivative (1 at p = 0, as the max's at an exact zero); in the band -p_on < p < 0 it is a
     tension of at most 0.26 p_on.
 
