@@ -211,6 +211,10 @@ _force_contraction = _bilinear(
 _gradient_contraction = _bilinear(
     lambda v, A: sum(v[..., None, i, :, None] * A[..., :, i, None, :] for i in range(A.shape[-2])),
     lambda v, A: jnp.sum(v[..., None, :, :, None] * A[..., :, :, None, :], axis=-3))
+# sum_j q_j A_jik -> (..., i, k): the stress force (E11) of an isotropic share q I
+_isotropic_contraction = _bilinear(
+    lambda q, A: sum(q[..., j, None, None] * A[..., j, :, :] for j in range(A.shape[-3])),
+    lambda q, A: jnp.sum(q[..., :, None, None] * A, axis=-3))
 # sum_i p_i A_nik -> (..., n, k): the integral of theta S_n grad p
 _scalar_contraction = _bilinear(
     lambda p, A: sum(p[..., None, i, None] * A[..., :, i, :] for i in range(A.shape[-2])),
@@ -226,6 +230,17 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
     sc = corners(sig_hat, d)                                              # (..., j, a, b)
     return add_corners(-_force_contraction(sc, dg.A), d)
+
+
+def nodal_pressure_force(grid, dg, p_hat_volume):
+    """`nodal_stress_force` of an isotropic nodal share p_hat I: f_i = - sum_j p_hat_j (S_j, grad S_i),
+    from p_hat_volume (K, *nodes) = sum_p V_p (1 - beta_p) p_p S_j(x_p) (Pa m^d) alone: one product
+    per corner and component where the tensor's contraction takes d (the interface forces, E13).
+    Returns (K, *nodes, d) in N."""
+    d = grid.dim
+    vmin = 1e-12 * grid.h**d
+    pc = corners(safe_div(p_hat_volume, dg.V, vmin), d)                  # (..., j)
+    return add_corners(-_isotropic_contraction(pc, dg.A), d)
 
 
 def nodal_velocity_gradient(grid, dg, v):

@@ -73,13 +73,12 @@ def particle_radius(lay, state):
 def nodal_stress_force(lay, dg, g):
     """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
     f = g["f"]
+    grid = lay.scene.grid
     if "shv" in g:
-        shv = g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))
-    elif "shp" in g:                   # isotropic share (pressure_parts): p_hat I
-        shv = g["shp"].reshape(grid_shape(lay))[..., None, None] * jnp.eye(lay.dim, dtype=f.dtype)
-    else:
-        return f
-    return f + ddmp.nodal_stress_force(lay.scene.grid, dg, shv).reshape(f.shape)
+        return f + ddmp.nodal_stress_force(grid, dg, g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))).reshape(f.shape)
+    if "shp" in g:                     # isotropic share (pressure_parts): p_hat I
+        return f + ddmp.nodal_pressure_force(grid, dg, g["shp"].reshape(grid_shape(lay))).reshape(f.shape)
+    return f
 
 
 def ddmp_operators(lay, st, nodal_volume, dtype, volume):

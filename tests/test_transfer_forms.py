@@ -93,7 +93,10 @@ def check_ddmp_operators(dim, axisymmetric):
     shv = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (dim, dim)))
     v = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (dim,)))
     p = jnp.asarray(rng.normal(size=grid.nodes))
+    shp = jnp.asarray(rng.normal(size=(K,) + grid.nodes))
     for fast, ref, arg in ((lambda a: ddmp.nodal_stress_force(grid, dg, a), force_ref, shv),
+                           (lambda a: ddmp.nodal_pressure_force(grid, dg, a),          # the isotropic share p_hat I
+                            lambda a: force_ref(a[..., None, None] * jnp.eye(dim)), shp),
                            (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
                            (lambda a: ddmp.nodal_scalar_gradient(grid, dg, a), scalar_ref, p)):
         np.testing.assert_allclose(jax.jit(fast)(arg), jax.jit(ref)(arg), rtol=1e-11, atol=1e-12)
