@@ -7,7 +7,9 @@ starts): they share the machine's cores, so this measures the overhead of the sp
 speed-up; on a machine with several GPUs it measures the scaling. Fixed dt, float32 unless --x64;
 interleaved repeats, fastest and median. Writes benchmarks/results/sharded_scaling_<scene>.csv.
 
-    python benchmarks/sharded_scaling.py [--scene mpm88|debris_cloud] [--host-devices 2] [--steps 100]
+    python benchmarks/sharded_scaling.py [--scene mpm88|debris_cloud] [--dim 2|3] [--host-devices 2] [--steps 100]
+
+(--dim 3: the peers' 3D scene, mpm88 at 64^3; writes sharded_scaling_mpm88_3d.csv.)
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import time
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="mpm88", choices=("mpm88", "debris_cloud"))
+    ap.add_argument("--dim", type=int, choices=(2, 3), default=2, help="mpm88 only: 2D (128^2) or 3D (64^3)")
     ap.add_argument("--host-devices", type=int, default=2, help="CPU only: XLA host devices to create (default 2)")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=5)
@@ -30,7 +33,10 @@ def main():
     ap.add_argument("--out", default=None, help="CSV path (default benchmarks/results/sharded_scaling_<scene>.csv)")
     args = ap.parse_args()
     if args.out is None:
-        args.out = os.path.join(os.path.dirname(__file__), "results", f"sharded_scaling_{args.scene}.csv")
+        suffix = "_3d" if args.dim == 3 else ""
+        args.out = os.path.join(os.path.dirname(__file__), "results", f"sharded_scaling_{args.scene}{suffix}.csv")
+    if args.dim == 3 and args.scene != "mpm88":
+        raise SystemExit(f"--dim 3 is invalid with --scene {args.scene}: allowed with mpm88 only")
     if "jax" in sys.modules:
         raise SystemExit("run this script on its own: the device count is fixed when JAX starts")
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={args.host_devices}").strip()
@@ -42,7 +48,8 @@ def main():
     import jaxmpm
     from jaxmpm import distributed
 
-    scene = jaxmpm.load_scene(args.scene, **({"resolution": 1.0, "fields": 2} if args.scene == "debris_cloud" else {}))
+    scene = jaxmpm.load_scene(args.scene, **({"resolution": 1.0, "fields": 2} if args.scene == "debris_cloud"
+                                             else {"dim": args.dim, "n_grid": 128 if args.dim == 2 else 64}))
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
     dt = 0.5 * float(jaxmpm.step.cfl_time_step(scene, params, state))

@@ -16,6 +16,12 @@ Rows:
                             CPU: jaxmpm/compile.py), compiled ahead (compile_s), warmed up once from the
                             initial state, then the median of --repeats timed runs, each continuing
                             from the previous one (the peers also time steps after the warm-up).
+  jaxmpm-split-cores        the same with the particles split across the CPU's cores, one XLA host device
+                            per core (XLA_FLAGS=--xla_force_host_platform_device_count=<CPUs>;
+                            `jaxmpm.distributed`: each device scatters its particles, the nodal sums
+                            are added across the devices, the grid update is repeated on each). XLA
+                            runs a scatter on one thread, so on one device it leaves the other cores
+                            idle for the step's largest part; the peers' Taichi and Warp use every core.
   jaxmpm-xla-defaults       the same compiled with XLA's default options (JAXMPM_XLA_DEFAULTS=1).
   jaxmpm-linear/-ddmp-musl  the same particles with shape 'linear' / 'ddmp' and the default musl update.
 A run is "stable" when, after all (1 + repeats) * steps steps (2D defaults: t = 0.4 s; the block hits
@@ -55,9 +61,12 @@ HERE = Path(__file__).resolve().parent
 PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"   # /work/shared/bench/peers
 YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
 
+CORES = os.cpu_count() or 1
+HOST_DEVICES_FLAG = f"--xla_force_host_platform_device_count={CORES}"
 # jaxmpm configurations: name -> (shape, transfer, extra XLA flag or None)
 JAXMPM = {
     "jaxmpm": ("bspline2", "apic", None),
+    "jaxmpm-split-cores": ("bspline2", "apic", HOST_DEVICES_FLAG),
     "jaxmpm-xla-defaults": ("bspline2", "apic", "JAXMPM_XLA_DEFAULTS=1"),
     "jaxmpm-linear-musl": ("linear", "musl", None),
     "jaxmpm-ddmp-musl": ("ddmp", "musl", None),
@@ -100,22 +109,32 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int) -> di
 
     import jaxmpm
 
-    shape, transfer, _ = JAXMPM[name]
+    from jaxmpm import distributed
+
+    shape, transfer, flag = JAXMPM[name]
     scene = dataclasses.replace(jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim), shape=shape, transfer=transfer)
     params = jaxmpm.default_params(scene)      # float32 (x64 stays off)
     state0 = jaxmpm.init_state(scene, params)
-    step = jaxmpm.make_step(scene)
+    n = int(state0.n_particles)
+    shards = len(jax.devices()) if flag == HOST_DEVICES_FLAG else 1
+    if shards > 1:      # particles split across the devices (padding copies carry eps^2 of the mass)
+        mesh = distributed.particle_mesh()
+        state0 = distributed.to_shards(scene, state0, mesh)
+        step = distributed.make_sharded_step(scene, mesh)
+    else:
+        step = jaxmpm.make_step(scene)
 
     def rollout(params, state, dt):
-        return jax.lax.scan(lambda s, _: (step(params, s, dt=dt), None), state, None, length=steps)[0]
+        return jax.lax.scan(lambda s, _: (step(params, s, jnp.inf, dt), None), state, None, length=steps)[0]
 
     def energy(s):   # kinetic + gravitational + internal (state.energy is per unit mass), J
         m = s.mass
         return float(jnp.sum(m * (0.5 * jnp.sum(s.v**2, -1) - s.x @ params.gravity + s.energy)))
 
-    e0 = energy(state0)
+    e0 = energy(state0)            # (padding copies: eps^2 of a particle's energy each)
 
     def stability(s):   # -> (finite, stable, max |v| m/s, relative energy change)
+        s = distributed.from_shards(scene, s, shards) if shards > 1 else s
         finite = all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(s))
         if not finite:
             return False, False, float("nan"), float("nan")
@@ -145,13 +164,14 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int) -> di
     if not stable:   # fall back to a CFL-bounded step, and say so
         why = f"max|v| = {vmax:.3g} m/s, dE/E0 = {de:+.2%}" if finite else "non-finite"
         note = f"UNSTABLE at peers' dt ({why} at t = {float(out.t):.3g} s): re-run at 0.3 * cfl_limit"
-        dt = jnp.asarray(0.3 * jaxmpm.cfl_limit(scene, params, state0), jnp.float32)
+        dt = jnp.asarray(0.3 * jaxmpm.cfl_limit(scene, params, jaxmpm.init_state(scene, params)), jnp.float32)
         out, times = measure(dt)
         finite, stable, vmax, de = stability(out)
         note += "" if stable else ", STILL UNSTABLE"
     note += f"; at t = {float(out.t):.3g} s: max|v| = {vmax:.3g} m/s, dE/E0 = {de:+.2%}"
     sec = statistics.median(times)
-    n = int(state0.n_particles)
+    if shards > 1:
+        note += f"; particles split across {shards} host devices ({jax.devices()[0].platform})"
     return dict(config=name, dim=dim, n_grid=n_grid, particles=n, steps=steps, dt=float(f"{float(dt):.6g}"), seconds=sec,
                 compile_s=compile_s, mpart_steps_per_s=n * steps / sec / 1e6, finite=finite, stable=stable,
                 note=note + f"; runs {', '.join('%.3f' % t for t in times)} s",
