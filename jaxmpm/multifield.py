@@ -28,18 +28,32 @@ def phase_pressure_and_compressibility(lay, params, state):
     return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 
-def interface_force(lay, st, beta, state, g, dg, m_min):
-    """(E13) interface forces between fields from the common pressure (E6, E15), (K, n_nodes, d):
+def interface_force(lay, params, st, beta, state, g, dg, m_min):
+    """(E13) interface forces between fields from the common pressure (E6), (K, n_nodes, d):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
-    minus the mass-fraction share of the net, so they sum to zero at each node. Also returns the
-    ambient pressure of each field (the common pressure of the others, (K, n_nodes)) for the
-    closure (E8), or None without it, and the common pressure p_n (n_nodes,)."""
-    p_n = nodal_common_pressure(lay, g, g["pm"], state.mass.dtype)
+    minus the mass-fraction share of the net, so they sum to zero at each node. Returns
+    (I, p_amb, volume_rate): the ambient pressure of each field (the common pressure of the
+    others, (K, n_nodes)) for the closure (E8), or None without it; with the continuity form
+    (E7) the function v (K, n_nodes, d) -> (N,) 1/s of `continuity_volume_rate` at this step, else
+    None. With the continuity form I and volume_rate come from one linearisation of the particle
+    pressures -> I map (`jax.vjp`), so the map's forward pass (a scatter of the pressures, the
+    common pressure, a gather, a scatter and two DDMP contractions) runs once, not twice; the
+    phase pressures' moments are scattered inside it, not with the other nodal parts (E15's fit,
+    continuity 'off', takes them from g['pm'])."""
+    dtype = state.mass.dtype
+    if lay.scene.continuity_form == "transport":
+        power_density, p_part = _coupling_map(lay, params, st, beta, state, g, dg, m_min)
+        I, transpose, mom = jax.vjp(power_density, p_part, has_aux=True)
+
+        def volume_rate(v):
+            return fields.safe_div(transpose(v)[0], state.volume, 0.0)
+    else:
+        mom, volume_rate = g["pm"], None
+        I = interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
     p_amb = None
     if lay.scene.c_h is not None:
-        theta, kappa, P = _pressure_inputs(lay, g, g["pm"], state.mass.dtype)
-        p_amb = fields.ambient_pressure(theta, kappa, P)
-    return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), p_amb, p_n
+        p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, mom, dtype))
+    return I, p_amb, volume_rate
 
 
 def pressure_moments(lay, st, pressure, volume):
@@ -130,7 +144,7 @@ def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
     return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
 
 
-def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v):
+def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
     """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
     divergence of its own field, so that the work of the interface forces is stored, not created.
 
@@ -160,15 +174,23 @@ def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v):
     the plain averages here, not the fit (E15): the fit's transpose has large weights of either
     sign at one-sided nodes (a tungsten rod entering steel went non-finite in 1 us with it), the
     average's are positive; with the continuity form the average keeps the settling column at rest."""
+    power_density, p_part = _coupling_map(lay, params, st, beta, state, g, dg, m_min)
+    _, transpose, _ = jax.vjp(power_density, p_part, has_aux=True)
+    return fields.safe_div(transpose(v)[0], state.volume, 0.0)
+
+
+def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
+    """The linear map of the continuity form, particle pressures (N,) -> the V_p S_mp averaged
+    phase pressures' moments (scattered) -> p_m (E6) -> interface forces (E13) (K, n_nodes, d),
+    returning the moments too (aux), and the particles' pressures (N,) where it is taken."""
     dtype = state.mass.dtype
 
-    def power_density(p_part):          # particle pressures -> p_m (E6) -> interface forces (E13)
+    def power_density(p_part):
         mom = scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
-        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
+        p_n = nodal_common_pressure(lay, g, mom, dtype)
+        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), mom
 
-    p_part, _ = phase_pressure_and_compressibility(lay, params, state)
-    _, transpose = jax.vjp(power_density, p_part)
-    return fields.safe_div(transpose(v)[0], state.volume, 0.0)
+    return power_density, phase_pressure_and_compressibility(lay, params, state)[0]
 
 
 def exchange_force(lay, params, m, vol, v, dt, m_min):

@@ -19,8 +19,7 @@ import numpy as np
 
 from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
-from jaxmpm.multifield import (continuity_volume_rate, exchange_force, interface_force, phase_pressure_and_compressibility,
-                               pressure_moments)
+from jaxmpm.multifield import exchange_force, interface_force, phase_pressure_and_compressibility, pressure_moments
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import phase_slices
@@ -147,7 +146,8 @@ def body_acceleration(lay, params, state):
 
 def particle_to_grid(lay, params, st, state, beta):
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
-    (nodal volume, stress share) and the multi-field stage (E15 fit moments, compressibility) need.
+    (nodal volume, stress share) and the multi-field stage (compressibility; E15's fit moments,
+    which the continuity form scatters in `multifield.interface_force` instead) need.
     Returns {name: (K, n_nodes, C)}."""
     m, v, V = state.mass, state.v, state.volume
     w = st.w[..., None]
@@ -157,7 +157,8 @@ def particle_to_grid(lay, params, st, state, beta):
         parts["vol"] = w * V[:, None, None]
     if lay.scene.has_interface_forces:
         p, kappa = phase_pressure_and_compressibility(lay, params, state)
-        parts["pm"] = pressure_moments(lay, st, p, V)                                # (E15)
+        if lay.scene.continuity_form != "transport":
+            parts["pm"] = pressure_moments(lay, st, p, V)                            # (E15)
         parts["kvol"] = w * (V * kappa)[:, None, None]
     return scatter_named(lay, st, parts)
 
@@ -165,17 +166,17 @@ def particle_to_grid(lay, params, st, state, beta):
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
     internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
-    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None, common
-    pressure (n_nodes,) or None)."""
+    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None, the
+    continuity form's volume rate v -> (N,) (`multifield.interface_force`) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume) if (beta is not None or scene.has_interface_forces) else None
     m = g["m"]
     v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
     f = nodal_stress_force(lay, dg, g)
-    p_amb, p_n = None, None
+    p_amb, volume_rate = None, None
     if scene.has_interface_forces:
-        I, p_amb, p_n = interface_force(lay, st, beta, state, g, dg, m_min)
+        I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
         f = f + I
     if acc_p is not None:
         f = f + lay.particle_sum(scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
@@ -187,7 +188,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if scene.has_exchange:
         F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
         a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
-    return v, a, dg, p_amb, p_n
+    return v, a, dg, p_amb, volume_rate
 
 
 def _with_hoop(lay, st, L, v, radius):
@@ -263,7 +264,7 @@ def seed_update(lay, params, state, dt):
     beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     g = particle_to_grid(lay, params, st, state, beta)                             # 2
     acc_p = body_acceleration(lay, params, state)
-    v_n, a_n, dg, p_amb_n, p_n = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
+    v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
     p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
     if scene.transfer == "musl":                                                   # 4
         v = state.v + dt * interpolate(st, lay.field, a_n)
@@ -272,7 +273,7 @@ def seed_update(lay, params, state, dt):
         x = state.x + dt * interpolate(st, lay.field, v_r)
         L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state))
         if scene.continuity_form == "transport":                                   # (E7)
-            extra = continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, p_n, v_r)
+            extra = volume_rate(v_r)
             L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
         moved = replace(state, x=x, v=v)
     else:

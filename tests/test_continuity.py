@@ -117,14 +117,21 @@ def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     m_min = S._mass_floor(lay, s)
     g = S.particle_to_grid(lay, params, st, s, beta)
     dg = nodal.ddmp_operators(lay, st, g["vol"][..., 0], s.mass.dtype, s.volume)
-    I, _, p_n = M.interface_force(lay, st, beta, s, g, dg, m_min)
+    I, _, volume_rate = M.interface_force(lay, params, st, beta, s, g, dg, m_min)
     v = jnp.asarray(np.random.default_rng(0).normal(size=I.shape)) * 100.0
-    rate = M.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, p_n, v)
+    rate = volume_rate(v)
+    # the step's rate (one linearisation with I) is the standalone transpose
+    np.testing.assert_allclose(np.asarray(rate), np.asarray(M.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, v)),
+                               rtol=1e-12, atol=1e-12 * float(jnp.abs(rate).max()))
     p_part, _ = M.phase_pressure_and_compressibility(lay, params, s)
-    power = float(jnp.sum(v * M.interface_force_of_pressure(lay, st, beta, s, g, dg, m_min, p_n)))
+    power = float(jnp.sum(v * I))
     stored = float(jnp.sum(p_part * s.volume * rate))
     assert abs(power) > 0 and float(jnp.abs(I).max()) > 0
     np.testing.assert_allclose(stored, power, rtol=1e-10)
+    off = two_blocks(1.0, "off", cells=100)
+    lay = S.Layout.of(off)
+    g = S.particle_to_grid(lay, params, st, s, beta)
+    assert M.interface_force(lay, params, st, beta, s, g, dg, m_min)[2] is None
 
 
 def test_continuity_option_validation_and_default():
