@@ -180,9 +180,10 @@ def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
 
 
 def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
-    """The linear map of the continuity form, particle pressures (N,) -> the V_p S_mp averaged
-    phase pressures' moments (scattered) -> p_m (E6) -> interface forces (E13) (K, n_nodes, d),
-    returning the moments too (aux), and the particles' pressures (N,) where it is taken."""
+    """The continuity form's map from the particle pressures (N,) Pa -> the V_p S_mp averaged phase
+    pressures' moments (scattered) -> p_m (E6, with the contact onset) -> interface forces (E13)
+    (K, n_nodes, d) N, with the moments as an auxiliary output; and the particles' pressures (N,)
+    at which the step takes it. Linear in the pressures outside the onset band."""
     dtype = state.mass.dtype
 
     def power_density(p_part):
