@@ -1,17 +1,18 @@
 """Cost of a gradient through N steps: forward time, value-and-gradient time and peak memory,
-with nested checkpointing (`simulate(..., checkpoint=True)`) and without.
+for each checkpointing of `simulate`: "nested" (two-level, memory ~ sqrt(N)), "steps" (each step
+recomputed from its stored input state, memory ~ N states) and none (every step's intermediates).
 
 Scene: the coarse debris cloud (resolution 0.75, two velocity fields, float64), a fixed time step
 of half the initial CFL step and t_end = N dt (the scene's grid grows with t_end). Loss: the
 mass-weighted mean axial position of the projectile at t_end, a function of theta = (log C_d,
 log C_h); the gradient is d loss / d theta (reverse mode). Peak memory: XLA's buffer assignment of
 the compiled program (arguments + outputs + temporaries of `CompiledMemoryStats`), deterministic
-and the same on any machine of the backend; times: wall seconds of one run after compilation. Runs without checkpointing whose
+and the same on any machine of the backend; times: wall seconds of one run after compilation. Runs whose
 program needs more than --max-gib are compiled (for their memory) but not run.
 
 Prints a table, writes benchmarks/results/grad_cost.csv and grad_cost.png (log-log).
 
-    python benchmarks/grad_cost.py [--steps 100,300,1000,3000,10000] [--max-gib 8]
+    python benchmarks/grad_cost.py [--steps 100,300,1000,3000,10000] [--modes nested,steps,none] [--max-gib 8]
 """
 from __future__ import annotations
 
@@ -57,11 +58,13 @@ def program_bytes(compiled):
     return m.temp_size_in_bytes + m.argument_size_in_bytes + m.output_size_in_bytes
 
 
-def measure(n_steps, checkpoint, max_bytes):
+def measure(n_steps, mode, max_bytes):
+    """One row: mode "nested", "steps" or "none" (simulate's checkpoint "nested", "steps", False)."""
     import jax.numpy as jnp
 
     import jaxmpm
 
+    checkpoint = False if mode == "none" else mode
     loss, n_particles, dt = problem(n_steps)
     theta = jnp.log(jnp.array([1.0, 0.15]))
     fwd = jaxmpm.jit(lambda th: loss(th, checkpoint))
@@ -71,7 +74,7 @@ def measure(n_steps, checkpoint, max_bytes):
     c_vg = vg.lower(theta).compile()
     compile_s = time.perf_counter() - t0
     mem_fwd, mem_vg = program_bytes(c_fwd), program_bytes(c_vg)
-    row = dict(steps=n_steps, checkpoint=checkpoint, particles=n_particles, dt=dt, compile_s=round(compile_s, 2),
+    row = dict(steps=n_steps, checkpoint=mode, particles=n_particles, dt=dt, compile_s=round(compile_s, 2),
                forward_peak_mib=mem_fwd / 2**20, gradient_peak_mib=mem_vg / 2**20,
                forward_s=float("nan"), gradient_s=float("nan"), ratio=float("nan"), finite=None)
     if mem_vg > max_bytes:
@@ -93,10 +96,12 @@ def plot(rows, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ck, style in ((True, "o-"), (False, "s--")):
+    for ck, style in (("nested", "o-"), ("steps", "^-."), ("none", "s--")):
         rs = [r for r in rows if r["checkpoint"] == ck]
+        if not rs:
+            continue
         n = [r["steps"] for r in rs]
-        label = "nested checkpointing" if ck else "no checkpointing"
+        label = {"nested": "nested checkpointing", "steps": "each step checkpointed", "none": "no checkpointing"}[ck]
         axes[0].loglog(n, [r["gradient_peak_mib"] for r in rs], style, label=f"gradient, {label}")
         axes[0].loglog(n, [r["forward_peak_mib"] for r in rs], style, alpha=0.4, label=f"forward, {label}")
         axes[1].loglog(n, [r["forward_s"] for r in rs], style, alpha=0.4, label=f"forward, {label}")
@@ -111,20 +116,25 @@ def plot(rows, path):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", default="100,300,1000,3000,10000")
+    ap.add_argument("--modes", default="nested,steps,none", help="checkpointing: nested, steps, none")
     ap.add_argument("--max-gib", type=float, default=8.0, help="run only programs needing less (GiB)")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     args = ap.parse_args()
     steps = [int(s) for s in args.steps.split(",")]
+    modes = args.modes.split(",")
+    for m in modes:
+        if m not in ("nested", "steps", "none"):
+            raise SystemExit(f"--modes: {m!r} is invalid: allowed nested, steps, none")
     rows = []
     print(f"{jax.default_backend()} ({platform.processor() or platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}")
-    print(f"{'N':>6} {'ckpt':>5} {'fwd MiB':>9} {'grad MiB':>9} {'fwd s':>8} {'grad s':>8} {'ratio':>6}")
+    print(f"{'N':>6} {'ckpt':>7} {'fwd MiB':>9} {'grad MiB':>9} {'fwd s':>8} {'grad s':>8} {'ratio':>6}")
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, "grad_cost.csv")
     for n in steps:
-        for ck in (True, False):
+        for ck in modes:
             r = measure(n, ck, args.max_gib * 2**30)
             rows.append(r)
-            print(f"{n:>6} {str(ck):>5} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
+            print(f"{n:>6} {ck:>7} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
                   f"{r['forward_s']:>8.3f} {r['gradient_s']:>8.3f} {r['ratio']:>6.2f}", flush=True)
             with open(path, "w", newline="") as f:          # rewritten after each row: a long run keeps what it measured
                 w = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -1,8 +1,9 @@
 """The forward model: debris-cloud parameters -> the three feature velocities (km/s).
 
 theta = (log C_d, log C_h): both are positive, and their effects span decades, so the fit works
-in log space. `CloudModel.velocities(theta)` runs the fixed-length, checkpointed `simulate` (so
-`jax.grad` through it keeps memory at one step per output interval) and measures the features of
+in log space. `CloudModel.velocities(theta)` runs the fixed-length, checkpointed `simulate`
+(checkpoint="auto": each step recomputed once in reverse while the stored states take at most
+1 GiB, nested checkpointing beyond) and measures the features of
 `jaxmpm.features` over the later half of the outputs (after the cloud has formed).
 """
 from __future__ import annotations
@@ -56,7 +57,7 @@ class CloudModel:
         """(3,) km/s, downstream positive, of points 1, 2, 4 from a history."""
         return -features.feature_velocities(self.scene, history, first=self.first) / 1000.0
 
-    def velocities(self, theta, checkpoint=True):
+    def velocities(self, theta, checkpoint="auto"):
         """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
         _, hist = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
                                   n_steps=self.n_steps, checkpoint=checkpoint)

@@ -79,7 +79,7 @@ class DebrisInWaterModel:
 
     def final(self, theta):
         final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.scene.t_end, n_out=1,
-                                   n_steps=self.n_steps, checkpoint=True)
+                                   n_steps=self.n_steps, checkpoint="auto")
         return final
 
     def observables(self, theta):

@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxmpm.compile import jit
 from jaxmpm.params import Params
-from jaxmpm.simulate import plan_steps, simulate
+from jaxmpm.simulate import checkpoint_mode, plan_steps, simulate
 
 
 def stack(items):
@@ -89,7 +89,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
     Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
-    per member (default: the most any member's CFL step needs, planned on the host). shard: split
+    per member (default: the most any member's CFL step needs, planned on the host). checkpoint:
+    as in `simulate` ("auto" counts the stored states of all B members). shard: split
     the batch across all devices when more than one exists. The members' results equal their
     single runs with the same n_steps (tests).
 
@@ -109,6 +110,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     if n_steps is None:
         n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end)
                       for i, p in enumerate(members))
+
+    checkpoint = checkpoint_mode(checkpoint, member(state, 0) if batched_state else state, n_steps, copies=B)
 
     def one(p, s):
         return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint)

@@ -6,8 +6,9 @@ Two drivers share one step:
     non-finite values after every chunk, and no wasted compilation;
   * fixed-length (inside jit / grad / vmap, or when `n_steps` is given): one scan of `n_steps`
     steps split evenly over the outputs; dt is clipped at each output time and steps after it are
-    identities, so the run is reverse-differentiable. `checkpoint=True` recomputes each step in the
-    backward pass (jax.checkpoint) to bound memory on long runs.
+    identities, so the run is reverse-differentiable. `checkpoint` bounds reverse-mode memory on
+    long runs by recomputing steps in the backward pass (jax.checkpoint): "steps" keeps every
+    step's input state, "nested" (or True) only about 2 sqrt(n) of them for one more forward pass.
 """
 from __future__ import annotations
 
@@ -130,20 +131,50 @@ def _step_of(scene, mesh):
     return make_sharded_step(scene, mesh)
 
 
+CHECKPOINT_MODES = (False, "steps", "nested")
+AUTO_STEPS_BYTES = 2**30     # "auto": "steps" while the stored input states take at most this much
+
+
+def state_bytes(state) -> int:
+    """Bytes of one State (works on tracers: shapes and dtypes only)."""
+    return sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in jax.tree.leaves(state))
+
+
+def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
+    """The checkpointing of the fixed-length driver named by simulate's `checkpoint` argument:
+    False (None), "steps", "nested" (True), or "auto": "steps" when the n_steps stored input
+    states of `copies` runs (an ensemble's members) take at most AUTO_STEPS_BYTES (1 GiB), else
+    "nested"."""
+    if checkpoint is None or checkpoint is False:
+        return False
+    if checkpoint is True:
+        return "nested"
+    if checkpoint == "auto":
+        if state is None or n_steps is None:
+            return "nested"
+        return "steps" if copies * int(n_steps) * state_bytes(state) <= AUTO_STEPS_BYTES else "nested"
+    if isinstance(checkpoint, str) and checkpoint in CHECKPOINT_MODES:
+        return checkpoint
+    raise ValueError(f"checkpoint = {checkpoint!r} is invalid: allowed False, True (= 'nested'), 'steps', 'nested' or 'auto'")
+
+
 @functools.lru_cache(maxsize=32)
 def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None):
-    """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint: the steps of each
-    interval under nested checkpointing (`_nested_scan`): reverse-mode memory ~ n_out + 2
-    sqrt(n_per_out) states."""
+    """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint (`checkpoint_mode`):
+    False: reverse mode stores every step's intermediates (memory ~ n_out n_per_out steps'
+    residuals, MiB each); "steps": each step under jax.checkpoint, its input state stored and the
+    step recomputed in reverse (memory ~ n_out n_per_out states); "nested": `_nested_scan`,
+    memory ~ n_out + 2 sqrt(n_per_out) states for one more forward pass."""
     step = _step_of(scene, mesh)
 
     @jit
     def run(params, state, times, dt):
         def inner(s, t_stop):
-            if checkpoint:
+            if checkpoint == "nested":
                 s = _nested_scan(jax.checkpoint(step), n_per_out, params, s, t_stop, dt)
             else:
-                s = jax.lax.scan(lambda s2, _: (step(params, s2, t_stop, dt), None), s, None, length=n_per_out)[0]
+                one = jax.checkpoint(step) if checkpoint == "steps" else step
+                s = jax.lax.scan(lambda s2, _: (one(params, s2, t_stop, dt), None), s, None, length=n_per_out)[0]
             return s, s
         return jax.lax.scan(inner, state, times)
 
@@ -202,8 +233,14 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     dt: a fixed time step (s), checked against the CFL limit; default: the CFL step each step.
     n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
       host cannot plan (use `plan_steps` outside). progress: tqdm bar (host driver only).
-    checkpoint: nested checkpointing of the steps (fixed-length driver): reverse-mode memory grows
-      as the square root of the steps per output, for about one extra forward pass (`_nested_scan`).
+    checkpoint: how reverse mode through the fixed-length driver bounds its memory.
+      False: no checkpointing; every step's intermediates are stored (MiB per step: short runs only).
+      "steps": each step recomputed once in reverse from its stored input state: memory grows as
+        the number of steps (one State each), the gradient costs about 4 forward runs.
+      "nested" or True: two-level checkpointing (`_nested_scan`): memory grows as the square root
+        of the steps per output, for one more forward pass (about 5-6 forward runs).
+      "auto": "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else "nested".
+      (Costs measured on the coarse debris cloud, benchmarks/grad_cost.py.)
       chunk: steps per jitted chunk (host driver).
     restart_file: path of a restart file to save every `restart_every` chunks and at each output
       (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically. An
@@ -219,6 +256,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     n_out = scene.n_out if n_out is None else int(n_out)
     if n_out < 1:
         raise ValueError(f"n_out = {n_out} is invalid: allowed an integer >= 1")
+    checkpoint = checkpoint_mode(checkpoint, state, n_steps)
     traced = _traced((params, state))
     if not traced:
         check_params(scene, params)
@@ -255,7 +293,7 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
         n_per_out = max(1, math.ceil(int(n_steps) / n_out))
         t0 = state.t
         times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
-        final, hist = _fixed_fn(scene, n_per_out, n_out, bool(checkpoint), mesh)(params, state, times, dt_arr)
+        final, hist = _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh)(params, state, times, dt_arr)
         history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
         return final, history
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):

@@ -145,6 +145,8 @@ CASES = [
     ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(cfl = 0\.3, h = 0\.1 m\)"),
     ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed > state\.t = 0\.0 s"),
     ("zero outputs to simulate", lambda: simulate_with(n_out=0), r"n_out = 0 is invalid: allowed an integer >= 1"),
+    ("unknown checkpointing", lambda: simulate_with(n_steps=4, checkpoint="everything"),
+     r"checkpoint = 'everything' is invalid: allowed False, True \(= 'nested'\), 'steps', 'nested' or 'auto'"),
     ("restart every 0 chunks", lambda: simulate_with(restart_file="x.h5", restart_every=0), r"restart_every = 0 is invalid: allowed an integer >= 1"),
     ("n_steps missing under jit", lambda: jax.jit(lambda p: jaxmpm.simulate(scene(), p, jaxmpm.init_state(scene(), jaxmpm.default_params(scene())))[0].t)(jaxmpm.default_params(scene())),
      r"n_steps is required inside jit/grad/vmap"),

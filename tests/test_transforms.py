@@ -1,5 +1,6 @@
 """jit, vmap and grad through the step and through simulate."""
 import dataclasses
+import importlib
 
 import jax
 import jax.numpy as jnp
@@ -100,9 +101,11 @@ def test_host_driver_equals_fixed_scan(small):
     np.testing.assert_allclose(np.asarray(ha.t), [0.0, 0.5, 1.0, 1.5], rtol=1e-12)
 
 
-def test_nested_checkpointing_gives_the_same_run_and_gradient(small):
-    """checkpoint=True (two-level checkpointing; 7 steps per output run as 3 chunks of 3, the last
-    two steps padding) equals the plain scan: the same result and the same gradient to round-off."""
+@pytest.mark.parametrize("mode", [True, "nested", "steps", "auto"])
+def test_checkpointing_gives_the_same_run_and_gradient(small, mode):
+    """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
+    the last two steps padding), "steps" (each step recomputed from its stored input) and "auto"
+    equal the plain scan: the same result and the same gradient to round-off."""
     from jaxmpm.simulate import nested_sizes
 
     scene, params, state = small
@@ -113,12 +116,29 @@ def test_nested_checkpointing_gives_the_same_run_and_gradient(small):
         final, hist = jaxmpm.simulate(scene, p, state, t_end=1.5, n_out=2, n_steps=14, checkpoint=checkpoint)
         return jnp.sum(final.mass * final.x[:, 0] * final.x[:, 1]) + jnp.sum(hist.stress[1, :, 0, 0]) * 1e-3, final.t
 
-    (a, ta), ga = jax.value_and_grad(lambda E: run(E, True), has_aux=True)(1000.0)
+    (a, ta), ga = jax.value_and_grad(lambda E: run(E, mode), has_aux=True)(1000.0)
     (b, tb), gb = jax.value_and_grad(lambda E: run(E, False), has_aux=True)(1000.0)
     assert float(ta) == float(tb) and float(ta) < 1.5          # falls short of t_end: padding must not step
     np.testing.assert_allclose(float(a), float(b), rtol=1e-13)
     assert float(gb) != 0.0
     np.testing.assert_allclose(float(ga), float(gb), rtol=1e-10)
+
+
+def test_auto_checkpointing_stores_each_step_only_within_its_memory_budget(small, monkeypatch):
+    """checkpoint="auto" is "steps" while n_steps stored States (times an ensemble's members) fit
+    in AUTO_STEPS_BYTES, "nested" beyond; the other names map as documented."""
+    sim = importlib.import_module("jaxmpm.simulate")     # the module (jaxmpm.simulate is the function)
+
+    scene, params, state = small
+    one = sim.state_bytes(state)
+    assert one == sum(np.asarray(a).nbytes for a in jax.tree.leaves(state))
+    monkeypatch.setattr(sim, "AUTO_STEPS_BYTES", 10 * one)
+    assert sim.checkpoint_mode("auto", state, 10) == "steps"
+    assert sim.checkpoint_mode("auto", state, 11) == "nested"
+    assert sim.checkpoint_mode("auto", state, 5, copies=2) == "steps"
+    assert sim.checkpoint_mode("auto", state, 5, copies=3) == "nested"
+    assert sim.checkpoint_mode(True) == "nested" and sim.checkpoint_mode(False) is False
+    assert sim.checkpoint_mode(None) is False and sim.checkpoint_mode("steps") == "steps"
 
 
 def test_jaxmpm_jit_turns_off_ynnpack_fusions_and_gives_the_same_step(small):
