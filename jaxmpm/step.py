@@ -23,7 +23,7 @@ from jaxmpm.multifield import exchange_force, interface_force, phase_pressure_an
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import phase_slices
-from jaxmpm.transfer import gather, gather_by_offset, interpolate, offset_stencil, scatter, scatter_by_offset, stencil_outer
+from jaxmpm.transfer import gather, gather_by_offset, interpolate, offset_stencil, scatter, scatter_by_window, stencil_outer
 
 
 @dataclass(frozen=True)
@@ -286,8 +286,10 @@ def seed_update(lay, params, state, dt):
 
 def apic_update(lay, params, state, dt):
     """APIC / MLS-MPM step with quadratic B-splines (D^-1 = 4 / h^2), for the peers' scene. One
-    velocity field (Scene checks it). The transfers loop over the 3^d stencil offsets with the
-    per-particle arrays component-major (`transfer.scatter_by_offset`, `gather_by_offset`)."""
+    velocity field (Scene checks it). The particle data stay component-major (particles last): the
+    particle-to-grid transfer adds each particle's 3^d block of nodes in one windowed scatter of
+    particle blocks (`transfer.scatter_by_window`), the grid-to-particle transfer loops over the
+    3^d stencil offsets (`transfer.gather_by_offset`)."""
     scene = lay.scene
     d, h = lay.dim, scene.grid.h
     dinv = 4.0 / h**2
@@ -302,11 +304,10 @@ def apic_update(lay, params, state, dt):
         mv = mv + dt * m[:, None] * acc_p
     mv = mv.T                                                                            # (d, N)
 
-    def contrib(w, dpos):                # mass and momentum w m, w (m v + affine . (x_n - x_p))
-        mom = mv + sum(affine[:, k] * dpos[k] for k in range(d))
-        return jnp.concatenate([(w * m)[None], w * mom], 0)
+    def contrib(w, dpos, m, mv, affine):  # mass and momentum w m, w (m v + affine . (x_n - x_p))
+        return [w * m] + [w * (mv[c] + sum(affine[c, k] * dpos[k] for k in range(d))) for c in range(d)]
 
-    g = lay.particle_sum(scatter_by_offset(ost, contrib, d + 1, lay.n_nodes, m.dtype))[None]   # (1, n_nodes, 1 + d)
+    g = lay.particle_sum(scatter_by_window(ost, contrib, (m, mv, affine), d + 1, m.dtype))[None]   # (1, n_nodes, 1 + d)
     v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
     if scene.damping is not None:
         v_n = v_n * jnp.exp(-params.damping * dt)

@@ -101,6 +101,8 @@ class OffsetStencil:
     offsets: np.ndarray  # (S, d) int32 offsets, first axis slowest (as in `shapes.Stencil`)
     strides: np.ndarray  # (d,) int32 flat-index strides of the nodes
     h: float             # cell size, m
+    corner: jax.Array    # (d, N) int32 node multi-index of the stencil's first node
+    nodes: tuple         # nodes per axis
 
 
 def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
@@ -115,7 +117,8 @@ def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
     w1 = jnp.stack(weights_1d(fx))                                                      # (width, d, N)
     strides = node_strides(grid.nodes)
     flat = sum(base[k] * int(strides[k]) for k in range(d))
-    return OffsetStencil(w1=w1, fx=fx, base=flat, offsets=stencil_offsets(d, width), strides=strides, h=grid.h)
+    return OffsetStencil(w1=w1, fx=fx, base=flat, offsets=stencil_offsets(d, width), strides=strides, h=grid.h,
+                         corner=base, nodes=tuple(grid.nodes))
 
 
 def _at_offset(ost, i):
@@ -151,3 +154,54 @@ def gather_by_offset(ost, nodal, accumulate, init):
         return accumulate(carry, w, dpos, nodal.at[:, node].get(mode="promise_in_bounds"))
 
     return jax.lax.fori_loop(0, len(ost.offsets), step, init)
+
+
+# ------------------------------------------------------------ the scatter in blocks of particles
+WINDOW_BLOCK = 8     # particles per block: one 256-bit vector of float32 (two of float64)
+
+
+def _block(a, n_blocks, block):
+    """(..., N) -> (..., n_blocks, block), zero past N."""
+    a = jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(0, n_blocks * block - a.shape[-1])])
+    return a.reshape(a.shape[:-1] + (n_blocks, block))
+
+
+def _on_axis(a, k, d):
+    """(width, n_blocks, block) values along axis k -> (n_blocks, 1.., width at k, ..1, block)."""
+    width, nb, block = a.shape
+    return jnp.moveaxis(a, 0, 1).reshape((nb,) + (1,) * k + (width,) + (1,) * (d - k - 1) + (block,))
+
+
+def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOCK):
+    """sum_p over each particle's stencil of contrib into nodes: returns (n_nodes, C).
+
+    The particles go in blocks of `block`, particles on the minor axis: contrib(w, dpos, *inputs)
+    gets the weights w (n_blocks, width x d, block), x_n - x_p along each axis (a tuple of d
+    arrays that broadcast against w, m) and every array of `inputs` (..., N) as (..., n_blocks,
+    1 x d, block); it returns the C channels as a list of arrays that broadcast against w. One
+    windowed scatter then adds every particle's width^d x C block of nodal values at once (XLA
+    computes one start index per particle, and the block's contributions are formed with the
+    particles on the vector lanes). Particles past N in the last block have zero weights.
+
+    Why: against `scatter_by_offset` (a scatter of one row per particle per offset, each formed
+    with the particles minor and then transposed to rows) the particle-to-grid transfer of the APIC
+    step is 3-4x faster in 3D and 2x in 2D on the CPU (benchmarks/apic_transfer.py)."""
+    width, d, n = ost.w1.shape
+    nb = -(-n // block)
+    w1 = _block(ost.w1, nb, block)                                              # (width, d, nb, block)
+    fx = _block(ost.fx, nb, block)                                              # (d, nb, block)
+    w = _on_axis(w1[:, 0], 0, d)
+    for k in range(1, d):
+        w = w * _on_axis(w1[:, k], k, d)
+    o = jnp.arange(width, dtype=fx.dtype)[:, None, None]
+    dpos = tuple(_on_axis((o - fx[k]) * ost.h, k, d) for k in range(d))
+    blocked = [_block(a, nb, block).reshape(a.shape[:-1] + (nb,) + (1,) * d + (block,)) for a in inputs]
+    parts = contrib(w, dpos, *blocked)
+    full = w.shape[:-1] + (block,)
+    updates = jnp.stack([jnp.broadcast_to(c, full).astype(dtype) for c in parts], -2)   # (nb, width x d, C, block)
+    idx = jnp.moveaxis(_block(ost.corner, nb, block), 0, -1)                  # (nb, block, d)
+    dn = jax.lax.ScatterDimensionNumbers(update_window_dims=tuple(range(1, d + 2)), inserted_window_dims=(),
+                                         scatter_dims_to_operand_dims=tuple(range(d)))
+    out = jax.lax.scatter_add(jnp.zeros(ost.nodes + (n_channels,), dtype), idx, updates, dn,
+                              mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+    return out.reshape(-1, n_channels)
