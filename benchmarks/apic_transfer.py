@@ -11,9 +11,11 @@
 
 Scene: the peers' mpm88 fluid (`jaxmpm.load_scene("mpm88")`), float32, the peers' dt. Forward: a
 `lax.scan` of `steps` steps; gradient: `jax.value_and_grad` of the mean squared height after those
-steps with respect to a uniform velocity offset (reverse mode through every step). Both forms are
+steps with respect to a uniform velocity offset (reverse mode through every step). All forms are
 compiled with `jaxmpm.jit`; their runs are interleaved (form by form, --repeats rounds) so that
-machine noise hits both alike; the table gives the fastest and the median run.
+machine noise hits all alike, each timed run right after an untimed run of the same program (the
+first run after another, larger program measured up to 2x slower: memory handed back and taken
+again); the table gives the fastest and the median run.
 
     python benchmarks/apic_transfer.py [--dim 2] [--n-grid 128] [--steps 50] [--repeats 5]
 
@@ -142,7 +144,8 @@ def main():
     times = {k: [] for k in progs}
     for _ in range(a.repeats):
         for k, f in progs.items():
-            t0 = time.perf_counter()
+            jax.block_until_ready(f(*args))        # untimed: the first run after another program's
+            t0 = time.perf_counter()              # (whose buffers were freed) can be 2x slower
             jax.block_until_ready(f(*args))
             times[k].append(time.perf_counter() - t0)
     rows = []

@@ -8,14 +8,21 @@ as sums of broadcast products, not einsums, which XLA's CPU backend turns into s
 calls for these tiny shapes (benchmarks/throughput.py; tests/test_transfer_forms.py checks them,
 and their gradients, against the einsums).
 
-Two forms of the transfers:
+Three forms of the transfers:
   scatter / gather                  on a shapes.Stencil, (N, S, C) per particle and stencil node;
                                     used by the musl / seed updates and the multi-field stages.
   scatter_by_offset /               on an OffsetStencil: a loop over the S stencil offsets with the
-  gather_by_offset                  per-particle arrays component-major (C, N); used by the APIC
-                                    step (one field): 1.3-1.5x faster there on the CPU, its gradient
-                                    1.7-2.3x (benchmarks/apic_transfer.py); tests/test_transfer_forms.py
-                                    checks equal values and gradients.
+  gather_by_offset                  per-particle arrays component-major (C, N); the APIC step's
+                                    grid-to-particle transfer (gather_by_offset).
+  scatter_by_window                 on an OffsetStencil: each particle's width^d block of nodes in
+                                    one windowed scatter, the contributions formed for blocks of 8
+                                    particles on the minor axis; the APIC step's particle-to-grid
+                                    transfer. The APIC step with it against the offset loop, in one
+                                    interleaved run (benchmarks/apic_transfer.py): forward 1.9x (3D
+                                    48^3) and 1.6x (2D 128^2) faster, gradient 1.4x and 1.3x.
+tests/test_transfer_forms.py checks that every form gives the values and gradients of the (N, S, C)
+form. A windowed scatter and gather of (N, S, C) rows (particles major, no blocks) measured no
+faster for the DDMP steps (one field 1.36x slower, three fields and the debris cloud within 2%).
 """
 from __future__ import annotations
 
@@ -183,9 +190,10 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     computes one start index per particle, and the block's contributions are formed with the
     particles on the vector lanes). Particles past N in the last block have zero weights.
 
-    Why: against `scatter_by_offset` (a scatter of one row per particle per offset, each formed
-    with the particles minor and then transposed to rows) the particle-to-grid transfer of the APIC
-    step is 3-4x faster in 3D and 2x in 2D on the CPU (benchmarks/apic_transfer.py)."""
+    Why: `scatter_by_offset` forms each offset's rows with the particles minor and XLA then
+    transposes them to the scatter's row layout, which took most of its time; rows formed with
+    the particles major (the (N, S, C) `scatter`) are poorly vectorised. On the CPU this
+    particle-to-grid transfer alone is 3-4x faster in 3D than the offset loop and 2x in 2D."""
     width, d, n = ost.w1.shape
     nb = -(-n // block)
     w1 = _block(ost.w1, nb, block)                                              # (width, d, nb, block)
