@@ -181,6 +181,7 @@ def free_port():
         return s.getsockname()[1]
 
 
+@pytest.mark.slow                # 94 s: two JAX processes joined by jax.distributed
 def test_two_processes_give_the_one_process_results(tmp_path):
     """Several hosts: two processes on localhost, joined by `jax.distributed.initialize` (CPU
     collectives over gloo), one device each. The particle-split two-field debris cloud and a
