@@ -300,6 +300,7 @@ def test_a_one_ulp_change_stays_one_ulp_when_the_fields_meet():
     assert worst < 1e-9, worst
 
 
+@pytest.mark.slow                # 110 s on 2 cores
 def test_checkpointed_gradient_runs_the_same_trajectory_as_the_forward_run():
     """200 steps of the coarse two-field cloud through the impact, float64: value and gradient of
     the projectile's mean axial position with respect to (log C_d, log C_h), by reverse mode with
