@@ -183,8 +183,8 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     """sum_p over each particle's stencil of contrib into nodes: returns (n_nodes, C).
 
     The particles go in blocks of `block`, particles on the minor axis: contrib(w, dpos, *inputs)
-    gets the weights w (n_blocks, width x d, block), x_n - x_p along each axis (a tuple of d
-    arrays that broadcast against w, m) and every array of `inputs` (..., N) as (..., n_blocks,
+    gets the weights w (n_blocks, width x d, block), x_n - x_p along each axis in m (a tuple of d
+    arrays that broadcast against w) and every array of `inputs` (..., N) as (..., n_blocks,
     1 x d, block); it returns the C channels as a list of arrays that broadcast against w. One
     windowed scatter then adds every particle's width^d x C block of nodal values at once (XLA
     computes one start index per particle, and the block's contributions are formed with the
@@ -205,8 +205,7 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     dpos = tuple(_on_axis((o - fx[k]) * ost.h, k, d) for k in range(d))
     blocked = [_block(a, nb, block).reshape(a.shape[:-1] + (nb,) + (1,) * d + (block,)) for a in inputs]
     parts = contrib(w, dpos, *blocked)
-    full = w.shape[:-1] + (block,)
-    updates = jnp.stack([jnp.broadcast_to(c, full).astype(dtype) for c in parts], -2)   # (nb, width x d, C, block)
+    updates = jnp.stack([jnp.broadcast_to(c, w.shape).astype(dtype) for c in parts], -2)   # (nb, width x d, C, block)
     idx = jnp.moveaxis(_block(ost.corner, nb, block), 0, -1)                  # (nb, block, d)
     dn = jax.lax.ScatterDimensionNumbers(update_window_dims=tuple(range(1, d + 2)), inserted_window_dims=(),
                                          scatter_dims_to_operand_dims=tuple(range(d)))
