@@ -243,6 +243,19 @@ def nodal_pressure_force(grid, dg, p_hat_volume):
     return add_corners(-_isotropic_contraction(pc, dg.A), d)
 
 
+def nodal_interface_force(grid, dg, p_hat_volume, p):
+    """`nodal_pressure_force` of p_hat_volume (K, *nodes) (or None: none) minus
+    `nodal_scalar_gradient` of the shared nodal pressure p (*nodes,), in one pass over the cells:
+    f_n = - sum_j p_hat_j (S_j, grad S_n) - sum_i p_i (S_n, grad S_i), the DDMP part of the
+    interface forces (E13). Returns (K, *nodes, d) in N."""
+    d = grid.dim
+    c = -_scalar_contraction(corners(p[None], d), dg.A)
+    if p_hat_volume is not None:
+        vmin = 1e-12 * grid.h**d
+        c = c - _isotropic_contraction(corners(safe_div(p_hat_volume, dg.V, vmin), d), dg.A)
+    return add_corners(c, d)
+
+
 def nodal_velocity_gradient(grid, dg, v):
     """(E12) L-bar_j = (1 / V_j) sum_i v_i (x) (S_j, grad S_i). v: (K, *nodes, d) -> (K, *nodes, d, d)."""
     d = grid.dim

@@ -32,23 +32,32 @@ def solve_small(A, b):
     Returns (x, det A). Batched LAPACK calls are slow for millions of tiny systems on the CPU; this
     is a handful of fused elementwise operations. Singular rows give non-finite x: guard outside."""
     n = A.shape[-1]
-    rows = [A[..., i, :] for i in range(n)]
-    rhs = [b[..., i, :] for i in range(n)]
-    det = jnp.ones(A.shape[:-2], A.dtype)
+    x, det = solve_rows([[A[..., i, j] for j in range(n)] for i in range(n)], [b[..., i, :] for i in range(n)])
+    return jnp.stack(x, -2), det
+
+
+def solve_rows(A, b):
+    """`solve_small` on a system given as nested lists: A[i][j] arrays of one batch shape (...),
+    b[i] arrays (..., k). Returns (x as a list of n arrays (..., k), det A (...)). With the batch
+    axis minor (nodes last), every operation is one elementwise loop over contiguous memory."""
+    n = len(A)
+    rows = [list(r) for r in A]
+    rhs = list(b)
+    det = jnp.ones_like(rows[0][0])
     for i in range(n):
-        piv = rows[i][..., i]
+        piv = rows[i][i]
         det = det * piv
         for j in range(i + 1, n):
-            f = rows[j][..., i] / piv
-            rows[j] = rows[j] - f[..., None] * rows[i]
+            f = rows[j][i] / piv
+            rows[j] = [rows[j][c] - f * rows[i][c] for c in range(n)]
             rhs[j] = rhs[j] - f[..., None] * rhs[i]
     x = [None] * n
     for i in reversed(range(n)):
         acc = rhs[i]
         for j in range(i + 1, n):
-            acc = acc - rows[i][..., j, None] * x[j]
-        x[i] = acc / rows[i][..., i, None]
-    return jnp.stack(x, -2), det
+            acc = acc - rows[i][j][..., None] * x[j]
+        x[i] = acc / rows[i][i][..., None]
+    return x, det
 
 
 def lsq_moments(st, pressure, volume):
@@ -102,52 +111,59 @@ def share_interface_force(I, m, m_min):
 
 
 def drag_matrix(theta, rho, v, cd, length, k_lin):
-    """K_kj of (E3) per node (n, K, K), zero diagonal. theta, rho: (K, n); v: (K, n, d).
-    cd (or None: no quadratic term), length (m), k_lin (or None: no linear term)."""
-    tt = theta[:, None] * theta[None, :]                                      # (K, K, n)
-    Kmat = 0.0
-    if cd is not None:
-        dv = v[:, None] - v[None, :]                                          # (K, K, n, d)
-        s2 = jnp.sum(dv * dv, -1)
-        speed = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)      # |dv|, gradient 0 at dv = 0
-        rho_f = jnp.minimum(rho[:, None], rho[None, :])
-        Kmat = cd * tt * rho_f * speed / length
-    if k_lin is not None:
-        Kmat = Kmat + k_lin * tt
-    n_f = theta.shape[0]
-    off = 1.0 - jnp.eye(n_f, dtype=theta.dtype)
-    return jnp.moveaxis(Kmat * off[..., None], -1, 0)                         # (n, K, K)
+    """K_kj of (E3) per node (K, K, n), symmetric with a zero diagonal, nodes minor. theta, rho:
+    (K, n); v: (K, n, d). cd (or None: no quadratic term), length (m), k_lin (or None: no linear
+    term)."""
+    rows = drag_rows(theta, rho, v, cd, length, k_lin)
+    return jnp.stack([jnp.stack([jnp.zeros_like(theta[0]) if K_kj is None else K_kj for K_kj in r]) for r in rows])
+
+
+def drag_rows(theta, rho, v, cd, length, k_lin):
+    """`drag_matrix` as nested lists: rows[k][j] the (n,) coefficient K_kj, None on the diagonal.
+    Each of the K (K - 1) / 2 pairs is formed once, component by component, elementwise over the
+    nodes."""
+    n_f, d = theta.shape[0], v.shape[-1]
+    rows = [[None] * n_f for _ in range(n_f)]
+    for k in range(n_f):
+        for j in range(k + 1, n_f):
+            tt = theta[k] * theta[j]
+            K_kj = jnp.zeros_like(tt)
+            if cd is not None:
+                s2 = sum((v[k, :, c] - v[j, :, c]) ** 2 for c in range(d))
+                speed = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)  # |dv|, gradient 0 at dv = 0
+                K_kj = cd * tt * jnp.minimum(rho[k], rho[j]) * speed / length
+            if k_lin is not None:
+                K_kj = K_kj + k_lin * tt
+            rows[k][j] = rows[j][k] = K_kj
+    return rows
 
 
 def exchange(m, v_star, Kmat, dt, V_n, m_min):
     """(E3) implicit drag: solve m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k per node.
-    m: (K, n), v_star: (K, n, d), Kmat: (n, K, K), V_n: (n,). Returns the exchange force
-    F_k = -V_n sum_j K_kj (v_k - v_j) at the implicit velocities, (K, n, d) in N: momentum moves
-    only between fields (sum_k F_k = 0 to round-off) and the solve is stable for any drag."""
+    m: (K, n), v_star: (K, n, d), Kmat: (K, K, n) (`drag_matrix`) or its nested lists
+    (`drag_rows`), V_n: (n,). Returns the exchange force F_k = -V_n sum_j K_kj (v_k - v_j) at the
+    implicit velocities, (K, n, d) in N: momentum moves only between fields (sum_k F_k = 0 to
+    round-off) and the solve is stable for any drag. The K x K systems are unrolled over the fields
+    with the nodes minor (`solve_rows`): elementwise loops over the nodes, no per-node matrices."""
     n_f = m.shape[0]
-    c = (dt * V_n)[:, None, None] * Kmat                                     # (n, K, K)
-    mt = m.T                                                                  # (n, K)
-    empty = mt <= m_min
+    Kr = [[None if j == k else Kmat[k][j] for j in range(n_f)] for k in range(n_f)]
+    empty = m <= m_min                                                        # (K, n)
+    a = [jnp.where(empty[k], 1.0, m[k]) for k in range(n_f)]
+    c = [[None if j == k else jnp.where(empty[k] | empty[j], 0.0, dt * V_n * Kr[k][j]) for j in range(n_f)]
+         for k in range(n_f)]
+    rhs = [m[k][:, None] * v_star[k] for k in range(n_f)]
     if n_f == 2:
-        c12 = c[:, 0, 1]
-        a1 = jnp.where(empty[:, 0], 1.0, mt[:, 0])
-        a2 = jnp.where(empty[:, 1], 1.0, mt[:, 1])
-        c12 = jnp.where(empty[:, 0] | empty[:, 1], 0.0, c12)
+        c12 = c[0][1]
+        a1, a2 = a
         det = a1 * a2 + c12 * (a1 + a2)
-        r1 = (mt[:, 0, None] * v_star[0])
-        r2 = (mt[:, 1, None] * v_star[1])
-        v1 = ((a2 + c12)[:, None] * r1 + c12[:, None] * r2) / det[:, None]
-        v2 = ((a1 + c12)[:, None] * r2 + c12[:, None] * r1) / det[:, None]
-        v = jnp.stack([v1, v2])
+        v = [((a2 + c12)[:, None] * rhs[0] + c12[:, None] * rhs[1]) / det[:, None],
+             ((a1 + c12)[:, None] * rhs[1] + c12[:, None] * rhs[0]) / det[:, None]]
     else:
-        c = jnp.where(empty[:, :, None] | empty[:, None, :], 0.0, c)
-        A = jnp.eye(n_f, dtype=m.dtype) * jnp.where(empty, 1.0, mt)[:, :, None] + (
-            jnp.eye(n_f, dtype=m.dtype) * jnp.sum(c, -1)[:, :, None] - c)
-        rhs = jnp.moveaxis(mt.T[..., None] * v_star, 0, 1)                   # (n, K, d)
-        v = jnp.moveaxis(solve_small(A, rhs)[0], 1, 0)
-    dv = v[:, None] - v[None, :]                                              # (K, K, n, d)
-    F = -V_n[None, :, None] * jnp.sum(jnp.moveaxis(Kmat, 0, -1)[..., None] * dv, 1)
-    return jnp.where(empty.T[..., None], 0.0, F)
+        A = [[a[k] + sum(c[k][i] for i in range(n_f) if i != k) if j == k else -c[k][j] for j in range(n_f)]
+             for k in range(n_f)]
+        v = solve_rows(A, rhs)[0]
+    F = [V_n[:, None] * sum(Kr[k][j][:, None] * (v[j] - v[k]) for j in range(n_f) if j != k) for k in range(n_f)]
+    return jnp.where(empty[..., None], 0.0, jnp.stack(F))
 
 
 def ambient_pressure(theta, kappa, P):

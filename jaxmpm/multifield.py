@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, pressure
-from jaxmpm.nodal import nodal_stress_force, node_volume, particle_radius, pressure_parts, scatter_named
+from jaxmpm.nodal import node_volume, particle_radius, pressure_parts, scatter_named
 from jaxmpm.transfer import interpolate
 
 
@@ -135,10 +135,11 @@ def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
     in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
     dtype = state.mass.dtype
     w = _shared_weight(lay, dtype)
+    grid = lay.scene.grid
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
-    I = nodal_stress_force(lay, dg, scatter_named(lay, st, pressure_parts(st, state.volume, beta, p_p, particle_radius(lay, state))))
-    grad_p = ddmp.nodal_scalar_gradient(lay.scene.grid, dg, p_n.reshape(lay.scene.grid.nodes))
-    I = I - grad_p.reshape(I.shape)
+    g_p = scatter_named(lay, st, pressure_parts(st, state.volume, beta, p_p, particle_radius(lay, state)))
+    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes) if "shp" in g_p else None
+    I = g_p["f"] + ddmp.nodal_interface_force(grid, dg, p_hat, p_n.reshape(grid.nodes)).reshape(g_p["f"].shape)
     if w is None:
         return fields.share_interface_force(I, g["m"][..., 0], m_min)
     return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
@@ -196,11 +197,22 @@ def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
 
 def exchange_force(lay, params, m, vol, v, dt, m_min):
     """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
-    and velocities v (K, n_nodes, d)."""
+    and velocities v (K, n_nodes, d), over a time step dt (s).
+
+    The solve runs under lax.cond(dt > 0) (at dt = 0 the step returns its input unchanged, so
+    skipping it there changes nothing). The conditional also makes XLA keep the nodal result:
+    without it the CPU backend fused the unrolled solve into the particles' gather of the nodal
+    acceleration and repeated it for every particle and stencil node. A three-field step of
+    benchmarks/multifield_cost.py took 8.5 ms with the conditional, 11.1 ms without (one
+    interleaved run, 2-core CPU, float32)."""
     scene = lay.scene
     V_n = node_volume(lay, m.dtype)
     theta = vol / V_n[None]
     rho = fields.safe_div(m, vol, 0.0)
-    K = fields.drag_matrix(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
-                           params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
-    return fields.exchange(m, v, K, dt, V_n, m_min)
+
+    def solve():
+        K = fields.drag_rows(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
+                             params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
+        return fields.exchange(m, v, K, dt, V_n, m_min)
+
+    return jax.lax.cond(dt > 0, solve, lambda: jnp.zeros_like(v))

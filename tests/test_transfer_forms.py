@@ -98,7 +98,12 @@ def check_ddmp_operators(dim, axisymmetric):
                            (lambda a: ddmp.nodal_pressure_force(grid, dg, a),          # the isotropic share p_hat I
                             lambda a: force_ref(a[..., None, None] * jnp.eye(dim)), shp),
                            (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
-                           (lambda a: ddmp.nodal_scalar_gradient(grid, dg, a), scalar_ref, p)):
+                           (lambda a: ddmp.nodal_scalar_gradient(grid, dg, a), scalar_ref, p),
+                           (lambda a: ddmp.nodal_interface_force(grid, dg, shp, a),    # both in one pass (E13)
+                            lambda a: force_ref(shp[..., None, None] * jnp.eye(dim)) - scalar_ref(a), p),
+                           (lambda a: ddmp.nodal_interface_force(grid, dg, a, p),
+                            lambda a: force_ref(a[..., None, None] * jnp.eye(dim)) - scalar_ref(p), shp),
+                           (lambda a: ddmp.nodal_interface_force(grid, dg, None, a), lambda a: -scalar_ref(a), p)):
         np.testing.assert_allclose(jax.jit(fast)(arg), jax.jit(ref)(arg), rtol=1e-11, atol=1e-12)
         w = jnp.asarray(rng.normal(size=jax.eval_shape(fast, arg).shape))
         np.testing.assert_allclose(jax.jit(jax.grad(lambda a: jnp.sum(w * fast(a))))(arg),
