@@ -232,22 +232,14 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     return add_corners(-_force_contraction(sc, dg.A), d)
 
 
-def nodal_pressure_force(grid, dg, p_hat_volume):
-    """`nodal_stress_force` of an isotropic nodal share p_hat I: f_i = - sum_j p_hat_j (S_j, grad S_i),
-    from p_hat_volume (K, *nodes) = sum_p V_p (1 - beta_p) p_p S_j(x_p) (Pa m^d) alone: one product
-    per corner and component where the tensor's contraction takes d (the interface forces, E13).
-    Returns (K, *nodes, d) in N."""
-    d = grid.dim
-    vmin = 1e-12 * grid.h**d
-    pc = corners(safe_div(p_hat_volume, dg.V, vmin), d)                  # (..., j)
-    return add_corners(-_isotropic_contraction(pc, dg.A), d)
-
-
 def nodal_interface_force(grid, dg, p_hat_volume, p):
-    """`nodal_pressure_force` of p_hat_volume (K, *nodes) (or None: none) minus
-    `nodal_scalar_gradient` of the shared nodal pressure p (*nodes,), in one pass over the cells:
-    f_n = - sum_j p_hat_j (S_j, grad S_n) - sum_i p_i (S_n, grad S_i), the DDMP part of the
-    interface forces (E13). Returns (K, *nodes, d) in N."""
+    """The DDMP part of the interface forces (E13), in one pass over the cells:
+    f_n = - sum_j p_hat_j (S_j, grad S_n) - sum_i p_i (S_n, grad S_i).
+    The first term is the stress force (E11, second part) of an isotropic nodal share p_hat I, from
+    p_hat_volume (K, *nodes) = sum_p V_p (1 - beta_p) p_p S_j(x_p) (Pa m^d) alone (one product per
+    corner and component where the tensor's contraction takes d); None: no such term. The second is
+    the integral over each field's cells of theta S_n grad p for the common pressure p (*nodes,),
+    Pa, shared by all fields. Returns (K, *nodes, d) in N."""
     d = grid.dim
     c = -_scalar_contraction(corners(p[None], d), dg.A)
     if p_hat_volume is not None:
@@ -262,11 +254,3 @@ def nodal_velocity_gradient(grid, dg, v):
     vmin = 1e-12 * grid.h**d
     vc = corners(v, d)                                                    # (..., i, a)
     return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
-
-
-def nodal_scalar_gradient(grid, dg, p):
-    """integral over each field's cells of theta S_n grad p, for a nodal scalar p (*nodes,)
-    shared by all fields: sum_i p_i (S_n, grad S_i). Returns (K, *nodes, d)."""
-    d = grid.dim
-    pc = corners(p[None], d)                                              # (1, *cells, 2^d)
-    return add_corners(_scalar_contraction(pc, dg.A), d)

@@ -54,7 +54,8 @@ def stress_parts(st, volume, beta, sig, radius=None):
 def pressure_parts(st, volume, beta, p, radius=None):
     """`stress_parts` of the isotropic stress p I (p: (N,) Pa), with DDMP's nodal share as one
     channel 'shp' = V (1 - beta) p S instead of the d^2 of 'shv' (its tensor is p_hat I): the
-    same forces from a narrower scatter (the interface forces, E13)."""
+    same forces from a narrower scatter (the interface forces, E13; `ddmp.nodal_interface_force`
+    contracts the share)."""
     Vb = volume if beta is None else volume * beta
     f = -(Vb * p)[:, None, None] * st.dw
     if radius is not None:
@@ -76,8 +77,6 @@ def nodal_stress_force(lay, dg, g):
     grid = lay.scene.grid
     if "shv" in g:
         return f + ddmp.nodal_stress_force(grid, dg, g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))).reshape(f.shape)
-    if "shp" in g:                     # isotropic share (pressure_parts): p_hat I
-        return f + ddmp.nodal_pressure_force(grid, dg, g["shp"].reshape(grid_shape(lay))).reshape(f.shape)
     return f
 
 

@@ -95,11 +95,8 @@ def check_ddmp_operators(dim, axisymmetric):
     p = jnp.asarray(rng.normal(size=grid.nodes))
     shp = jnp.asarray(rng.normal(size=(K,) + grid.nodes))
     for fast, ref, arg in ((lambda a: ddmp.nodal_stress_force(grid, dg, a), force_ref, shv),
-                           (lambda a: ddmp.nodal_pressure_force(grid, dg, a),          # the isotropic share p_hat I
-                            lambda a: force_ref(a[..., None, None] * jnp.eye(dim)), shp),
                            (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
-                           (lambda a: ddmp.nodal_scalar_gradient(grid, dg, a), scalar_ref, p),
-                           (lambda a: ddmp.nodal_interface_force(grid, dg, shp, a),    # both in one pass (E13)
+                           (lambda a: ddmp.nodal_interface_force(grid, dg, shp, a),    # E13: isotropic share and theta S grad p
                             lambda a: force_ref(shp[..., None, None] * jnp.eye(dim)) - scalar_ref(a), p),
                            (lambda a: ddmp.nodal_interface_force(grid, dg, a, p),
                             lambda a: force_ref(a[..., None, None] * jnp.eye(dim)) - scalar_ref(p), shp),
