@@ -219,9 +219,10 @@ def test_continuity_off_traces_no_transpose():
 
 @pytest.mark.parametrize("axisymmetric", [False, True])
 def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetric):
-    """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts) gives
-    the nodal forces of the general stress parts of p I to round-off, plane and axisymmetric."""
-    from jaxmpm import nodal
+    """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts, contracted
+    by ddmp.nodal_interface_force) gives the nodal forces of the general stress parts of p I to
+    round-off, plane and axisymmetric."""
+    from jaxmpm import ddmp, nodal
     from jaxmpm import step as S
     from jaxmpm.shapes import ddmp_beta, stencil
 
@@ -238,7 +239,10 @@ def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetr
     radius = nodal.particle_radius(lay, s)
     iso = p[:, None, None] * jnp.eye(scene.material_dim, dtype=p.dtype)
     wide = nodal.nodal_stress_force(lay, dg, nodal.scatter_named(lay, st, nodal.stress_parts(st, s.volume, beta, iso, radius)))
-    narrow = nodal.nodal_stress_force(lay, dg, nodal.scatter_named(lay, st, nodal.pressure_parts(st, s.volume, beta, p, radius)))
+    g_p = nodal.scatter_named(lay, st, nodal.pressure_parts(st, s.volume, beta, p, radius))
+    grid = scene.grid
+    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes)              # no common pressure: its term is 0
+    narrow = g_p["f"] + ddmp.nodal_interface_force(grid, dg, p_hat, jnp.zeros(grid.nodes)).reshape(g_p["f"].shape)
     assert float(jnp.abs(wide).max()) > 0
     np.testing.assert_allclose(np.asarray(narrow), np.asarray(wide), rtol=1e-12, atol=1e-12 * float(jnp.abs(wide).max()))
 
