@@ -111,15 +111,17 @@ def share_interface_force(I, m, m_min):
 
 
 def drag_matrix(theta, rho, v, cd, length, k_lin):
-    """K_kj of (E3) per node (K, K, n), symmetric with a zero diagonal, nodes minor. theta, rho:
-    (K, n); v: (K, n, d). cd (or None: no quadratic term), length (m), k_lin (or None: no linear
-    term)."""
+    """K_kj of (E3) per node (K, K, n) in kg/(m^3 s), symmetric with a zero diagonal, nodes minor.
+    theta: (K, n) volume fractions; rho: (K, n) true densities, kg/m^3; v: (K, n, d) m/s.
+    cd (dimensionless, or None: no quadratic term), length (m), k_lin (kg/(m^3 s), or None: no
+    linear term)."""
     rows = drag_rows(theta, rho, v, cd, length, k_lin)
     return jnp.stack([jnp.stack([jnp.zeros_like(theta[0]) if K_kj is None else K_kj for K_kj in r]) for r in rows])
 
 
 def drag_rows(theta, rho, v, cd, length, k_lin):
-    """`drag_matrix` as nested lists: rows[k][j] the (n,) coefficient K_kj, None on the diagonal.
+    """`drag_matrix` as nested lists: rows[k][j] the (n,) coefficient K_kj in kg/(m^3 s), None on
+    the diagonal.
     Each of the K (K - 1) / 2 pairs is formed once, component by component, elementwise over the
     nodes."""
     n_f, d = theta.shape[0], v.shape[-1]
