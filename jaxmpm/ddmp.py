@@ -120,10 +120,112 @@ def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Window:
+    """Where each field's DDMP operators are computed when the scene sets `window`: a block of
+    `size` cells (static, the same for every field) placed, per field and per step, at the field's
+    first occupied cell. Outside the block a field has no particles, so its cells have no weight
+    (R2) and its operators are zero there: computing them on the block gives the whole grid's
+    values (round-off equal). When some field's particles span more than the block, `fits` is
+    False and the operators are computed on the whole grid instead (`lax.cond`)."""
+    size: tuple         # cells per axis of every field's block (static)
+    nodes: tuple        # the grid's nodes per axis (static)
+    origin: jax.Array   # (K, d) int32: the first cell of each field's block
+    fits: jax.Array     # () bool: every field's occupied cells lie in its block
+    dense: tuple        # (nodal_volume (K, *nodes), cell_volume (K, *cells)): build's inputs, for the fallback
+    axisymmetric: bool
+
+
+@dataclass(frozen=True)
 class DDMPGrid:
-    V: jax.Array      # (K, *nodes) V_j of (R3), m^d
-    A: jax.Array      # (K, *cells, 2^d, 2^d, d) per-cell (S_j, grad S_i), m^(d-1)
-    theta: jax.Array  # (K, *nodes) nodal fill of (R1)
+    V: jax.Array      # (K, *nodes) V_j of (R3), m^d; on the blocks' nodes (K, *(size + 1)) with a window
+    A: jax.Array      # (K, *cells, 2^d, 2^d, d) per-cell (S_j, grad S_i), m^(d-1); the blocks' cells with a window
+    theta: jax.Array  # (K, *nodes) nodal fill of (R1); the blocks' nodes with a window
+    window: Window | None = None
+
+
+def window_origin(cell_volume, size):
+    """Each field's block of `size` cells (static tuple): (K, d) int32 its first cell, at the
+    field's first occupied cell (cell_volume (K, *cells) > 0) where the grid allows, and (K,) bool
+    whether it holds all the field's occupied cells (True for an empty field)."""
+    K, cells = cell_volume.shape[0], cell_volume.shape[1:]
+    d = len(cells)
+    occupied = cell_volume > 0
+    origin, fits = [], jnp.ones((K,), bool)
+    for e in range(d):
+        occ = jnp.any(occupied, axis=tuple(1 + k for k in range(d) if k != e))          # (K, cells_e)
+        lo = jnp.argmax(occ, axis=-1)
+        hi = cells[e] - 1 - jnp.argmax(occ[:, ::-1], axis=-1)
+        o = jnp.clip(lo, 0, cells[e] - size[e])
+        origin.append(o)
+        fits = fits & ((hi < o + size[e]) | ~jnp.any(occ, axis=-1))
+    return jnp.stack(origin, -1).astype(jnp.int32), fits
+
+
+def fitting_window(scene, x, margin=2):
+    """A `Scene.window` for positions x (N, d) m (an initial state's): the cells per axis of
+    the largest extent of any one field's particles plus `margin` cells on each side, at most the
+    grid's cells. Pick the margin from how far the fields will spread; a field that outgrows the
+    window costs that step the whole grid, never accuracy."""
+    from jaxmpm.state import particle_fields
+
+    grid = scene.grid
+    x = np.asarray(x)
+    cell = np.floor((x - np.asarray(grid.origin)) / grid.h).astype(int)
+    field = particle_fields(scene)
+    extent = np.zeros(grid.dim, int)
+    for k in np.unique(field):
+        c = cell[field == k]
+        extent = np.maximum(extent, c.max(0) - c.min(0) + 1)
+    return tuple(int(min(e + 2 * margin, n)) for e, n in zip(extent, grid.cells))
+
+
+def _index(origin, n_extra):
+    return tuple(origin) + (jnp.zeros((), origin.dtype),) * n_extra
+
+
+def take_window(a, origin, size):
+    """a (K or 1, *space, ...) -> (K, *size, ...): each field's block of `size` (static) at its
+    origin (K, d); an array of one field (the common pressure) is taken at every field's block."""
+    d = len(size)
+    extra = tuple(a.shape[1 + d:])
+    if a.shape[0] == 1 and origin.shape[0] > 1:
+        return jax.vmap(lambda o: jax.lax.dynamic_slice(a[0], _index(o, len(extra)), tuple(size) + extra))(origin)
+    return jax.vmap(lambda ak, o: jax.lax.dynamic_slice(ak, _index(o, len(extra)), tuple(size) + extra))(a, origin)
+
+
+def put_window(w, origin, space):
+    """The blocks w (K, *size, ...) placed at their origins (K, d) in zeros (K, *space, ...)."""
+    d = len(space)
+    extra = tuple(w.shape[1 + d:])
+    zeros = jnp.zeros(tuple(space) + extra, w.dtype)
+    return jax.vmap(lambda wk, o: jax.lax.dynamic_update_slice(zeros, wk, _index(o, len(extra))))(w, origin)
+
+
+def _on_windows(grid, dg, op, *nodal):
+    """op(dg, *nodal) -> (K, *nodes, ...) for nodal arrays (K or 1, *nodes, ...). With a window: on
+    each field's block, placed back on the grid, or on the whole grid when a field outgrows its
+    block. Two choices, both measured on benchmarks/multifield_cost.py:
+    - the blocks are taken, and the result placed, under the conditional on `fits`, so that XLA's
+      CPU backend keeps them as arrays. Fused into their consumers, the dynamic offsets made the
+      contractions' cell loops 2-3x slower per cell than the whole grid's, and the placement was
+      recomputed for every particle and stencil node of the gathers;
+    - the whole-grid branch is rematerialised (jax.checkpoint): a differentiated conditional keeps
+      the residuals of both branches, so the whole grid's (zeros, when the blocks are taken) were
+      filled every step, 0.3 ms of a 3-field step."""
+    w = dg.window
+    if w is None:
+        return op(dg, *nodal)
+    wnodes = tuple(c + 1 for c in w.size)
+    K = w.origin.shape[0]
+    blocks = jax.lax.cond(w.fits, lambda: tuple(take_window(a, w.origin, wnodes) for a in nodal),
+                          lambda: tuple(jnp.zeros((K,) + wnodes + a.shape[1 + len(wnodes):], a.dtype) for a in nodal))
+    on_blocks = op(dg, *blocks)
+
+    @jax.checkpoint   # differentiated, a conditional keeps both branches' residuals: these are the inputs alone
+    def on_grid(dense, nodal):
+        return op(build(grid, *dense, w.axisymmetric), *nodal)
+
+    return jax.lax.cond(w.fits, lambda: put_window(on_blocks, w.origin, w.nodes), lambda: on_grid(w.dense, nodal))
 
 
 FILL_RAMP = 0.25
@@ -142,7 +244,7 @@ def cell_weight(expected, cell_volume):
     return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
 
 
-def _cell_integrator(grid, dtype, axisymmetric):
+def _cell_integrator(grid, dtype, axisymmetric, r_c=None):
     """integrate(tc, T, T_s): the cell integrals of theta-weighted products, sum_n tc_n T[j, n, ...]
     (K, *cells, 2^d, ...), with the axisymmetric weight r = r_c + h s along axis 0 (r_c T + h T_s)."""
     d = grid.dim
@@ -156,32 +258,49 @@ def _cell_integrator(grid, dtype, axisymmetric):
 
     if not axisymmetric:
         return lambda tc, T, Ts: plain(tc, T)
-    r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((-1,) + (1,) * (d - 1))
+    if r_c is None:   # (1 or K, cells_0, 1, ...): the radius of each cell's first node
+        r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((1, -1) + (1,) * (d - 1))
 
     def integrate(tc, T, Ts):
         a = plain(tc, T)
-        return r_c.reshape(r_c.shape + (1,) * (a.ndim - r_c.ndim - 1)) * a + grid.h * plain(tc, Ts)
+        return r_c.reshape(r_c.shape + (1,) * (a.ndim - r_c.ndim)) * a + grid.h * plain(tc, Ts)
 
     return integrate
 
 
-def build(grid, nodal_volume, cell_volume, axisymmetric=False):
+def build(grid, nodal_volume, cell_volume, axisymmetric=False, window=None):
     """Assemble V and A from the nodal particle volume (K, *nodes) = sum_p V_p S_n(x_p) and the
     particle volume in each cell (K, *cells); axisymmetric: integrals weighted by the radius r
-    (volumes per radian)."""
+    (volumes per radian). window: None (the whole grid) or the cells per axis of each field's
+    block (`Window`), a static tuple of d ints <= grid.cells."""
     d = grid.dim
     T0, Tg = cell_tensors(d, grid.h)
     T0s, Tgs = cell_tensors(d, grid.h, True) if axisymmetric else (None, None)
     dtype = nodal_volume.dtype
-    integrate = _cell_integrator(grid, dtype, axisymmetric)
-    theta = jnp.clip(nodal_volume / jnp.asarray(node_support(grid, axisymmetric), dtype), 0.0, 1.0)   # (R1)
+    support = jnp.asarray(node_support(grid, axisymmetric), dtype)[None]
+    win, r_c = None, None
+    if window is not None:
+        window = tuple(int(c) for c in window)
+        origin, fits = window_origin(cell_volume, window)
+        win = Window(size=window, nodes=tuple(grid.nodes), origin=origin, fits=jnp.all(fits),
+                     dense=(nodal_volume, cell_volume), axisymmetric=axisymmetric)
+        wnodes = tuple(w + 1 for w in window)
+        nodal_volume = take_window(nodal_volume, origin, wnodes)
+        cell_volume = take_window(cell_volume, origin, window)
+        support = take_window(jnp.broadcast_to(support, nodal_volume.shape[:1] + support.shape[1:]), origin, wnodes)
+        if axisymmetric:
+            r_all = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype)
+            r_c = jax.vmap(lambda o: jax.lax.dynamic_slice(r_all, (o,), (window[0],)))(origin[:, 0])
+            r_c = r_c.reshape(r_c.shape + (1,) * (d - 1))
+    integrate = _cell_integrator(grid, dtype, axisymmetric, r_c)
+    theta = jnp.clip(nodal_volume / support, 0.0, 1.0)   # (R1)
     tc = corners(theta, d)
     expected = jnp.sum(integrate(tc, T0, T0s), axis=-1)             # integral of theta over the cell
     tc = tc * cell_weight(expected, cell_volume)[..., None]                                 # (R2)
     Vc = integrate(tc, T0, T0s)
     A = integrate(tc, Tg, Tgs)
     V = add_corners(Vc, d)                                                               # (R3)
-    return DDMPGrid(V=V, A=A, theta=theta)
+    return DDMPGrid(V=V, A=A, theta=theta, window=win)
 
 
 def _bilinear(unrolled, reduced):
@@ -227,9 +346,12 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     Returns (K, *nodes, d) in N."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
-    sig_hat = safe_div(sigma_hat_volume, dg.V[..., None, None], vmin)
-    sc = corners(sig_hat, d)                                              # (..., j, a, b)
-    return add_corners(-_force_contraction(sc, dg.A), d)
+
+    def op(dg, shv):
+        sc = corners(safe_div(shv, dg.V[..., None, None], vmin), d)     # (..., j, a, b)
+        return add_corners(-_force_contraction(sc, dg.A), d)
+
+    return _on_windows(grid, dg, op, sigma_hat_volume)
 
 
 def nodal_interface_force(grid, dg, p_hat_volume, p):
@@ -241,16 +363,24 @@ def nodal_interface_force(grid, dg, p_hat_volume, p):
     the integral over each field's cells of theta S_n grad p for the common pressure p (*nodes,),
     Pa, shared by all fields. Returns (K, *nodes, d) in N."""
     d = grid.dim
-    c = -_scalar_contraction(corners(p[None], d), dg.A)
-    if p_hat_volume is not None:
-        vmin = 1e-12 * grid.h**d
-        c = c - _isotropic_contraction(corners(safe_div(p_hat_volume, dg.V, vmin), d), dg.A)
-    return add_corners(c, d)
+    vmin = 1e-12 * grid.h**d
+
+    def op(dg, p, *p_hat_volume):
+        c = -_scalar_contraction(corners(p, d), dg.A)
+        for phv in p_hat_volume:
+            c = c - _isotropic_contraction(corners(safe_div(phv, dg.V, vmin), d), dg.A)
+        return add_corners(c, d)
+
+    return _on_windows(grid, dg, op, p[None], *(() if p_hat_volume is None else (p_hat_volume,)))
 
 
 def nodal_velocity_gradient(grid, dg, v):
     """(E12) L-bar_j = (1 / V_j) sum_i v_i (x) (S_j, grad S_i). v: (K, *nodes, d) -> (K, *nodes, d, d)."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
-    vc = corners(v, d)                                                    # (..., i, a)
-    return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
+
+    def op(dg, v):
+        vc = corners(v, d)                                                # (..., i, a)
+        return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
+
+    return _on_windows(grid, dg, op, v)

@@ -204,15 +204,48 @@ def exchange_force(lay, params, m, vol, v, dt, m_min):
     without it the CPU backend fused the unrolled solve into the particles' gather of the nodal
     acceleration and repeated it for every particle and stencil node. A three-field step of
     benchmarks/multifield_cost.py took 8.5 ms with the conditional, 11.1 ms without (one
-    interleaved run, 2-core CPU, float32)."""
+    interleaved run, 2-core CPU, float32).
+
+    With scene.window the solve runs on one block of window + 1 nodes per axis placed on the
+    nodes where two or more fields have volume: the drag K_kj is proportional to theta_k theta_j
+    (E3), so the force is exactly zero at every other node. When those nodes span more than the
+    block, the step solves on the whole grid."""
     scene = lay.scene
     V_n = node_volume(lay, m.dtype)
-    theta = vol / V_n[None]
-    rho = fields.safe_div(m, vol, 0.0)
 
-    def solve():
+    def solve(m, vol, v, V_n):
+        theta = vol / V_n[None]
+        rho = fields.safe_div(m, vol, 0.0)
         K = fields.drag_rows(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
                              params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
         return fields.exchange(m, v, K, dt, V_n, m_min)
 
-    return jax.lax.cond(dt > 0, solve, lambda: jnp.zeros_like(v))
+    if scene.window is None:
+        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: jnp.zeros_like(v))
+    nodes = tuple(scene.grid.nodes)
+    size = tuple(c + 1 for c in scene.window)
+    K, d = m.shape[0], len(nodes)
+    shared = (jnp.sum(vol > 0, 0) >= 2).reshape((1,) + nodes).astype(m.dtype)    # nodes where K_kj can be nonzero
+    origin, fits = ddmp.window_origin(shared, size)
+    origin = jnp.broadcast_to(origin, (K, d))
+    on = (dt > 0) & fits[0]
+
+    def take():
+        def block(a):
+            return ddmp.take_window(a.reshape((a.shape[0],) + nodes + a.shape[2:]), origin, size).reshape((K, -1) + a.shape[2:])
+        return block(m), block(vol), block(v), block(V_n[None])[0]
+
+    def nothing():   # no mass: the solve gives zero (its result is not used)
+        n = int(np.prod(size))
+        return jnp.zeros((K, n), m.dtype), jnp.zeros((K, n), m.dtype), jnp.zeros((K, n, d), m.dtype), jnp.ones((n,), m.dtype)
+
+    F_block = solve(*jax.lax.cond(on, take, nothing))    # taken under the conditional: kept as arrays (see ddmp._on_windows)
+
+    def place():
+        return ddmp.put_window(F_block.reshape((K,) + size + (d,)), origin, nodes).reshape(v.shape)
+
+    @jax.checkpoint   # differentiated: its residuals are its inputs (see ddmp._on_windows)
+    def whole(m, vol, v):
+        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: jnp.zeros_like(v))
+
+    return jax.lax.cond(on, place, lambda: whole(m, vol, v))

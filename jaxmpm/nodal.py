@@ -82,11 +82,11 @@ def nodal_stress_force(lay, dg, g):
 
 def ddmp_operators(lay, st, nodal_volume, dtype, volume):
     """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
-    particle volumes (N,) at stencil st."""
+    particle volumes (N,) at stencil st; on each field's block of scene.window cells if set."""
     scene = lay.scene
     cells = lay.particle_sum(cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype)))
     return ddmp.build(scene.grid, nodal_volume.reshape(grid_shape(lay)),
-                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric)
+                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric, scene.window)
 
 
 def node_volume(lay, dtype):

@@ -141,6 +141,16 @@ class Scene:
         (grid.origin[0] >= 0), axis 1 the axial coordinate z. Volumes and masses are per radian
         (V = r dr dz), the stress has a hoop component (stress and F are 3x3, the third axis theta)
         and the grid force a hoop term; on the axis (r = 0) v_r = 0 whatever boundary.x_lo says.
+      window: None (default) or the cells per axis (d ints) of a block on which the per-field grid
+        operators are computed instead of on the whole grid: each velocity field's DDMP operators
+        (R1-R3, E11-E13) on a block placed every step at the field's first occupied cell, the
+        exchange (E3, E14) on a block placed on the nodes that two or more fields share. Outside
+        these blocks the operators are zero, so the results are those of the whole grid (to
+        round-off) at the cost of the blocks: for fields that each cover a small part of the grid
+        (benchmarks/multifield_cost.py; `ddmp.fitting_window` picks one from an initial state).
+        A step in which a field's particles (or the shared nodes) span more than the block is
+        computed on the whole grid. Leave it None for ensembles under vmap: there both ways are
+        computed every step.
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
@@ -162,6 +172,7 @@ class Scene:
     fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
     axisymmetric: bool = False
+    window: tuple[int, ...] | None = None
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
@@ -252,6 +263,13 @@ class Scene:
                 _fail("grid.origin[0]", self.grid.origin[0], ">= 0 m (the radius of an axisymmetric grid)")
             if self.shape == "bspline2" or self.transfer == "apic":
                 _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
+        if self.window is not None:
+            w = self.window
+            ok = (isinstance(w, (tuple, list)) and len(w) == dim
+                  and all(isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= n for c, n in zip(w, self.grid.cells)))
+            if not ok:
+                _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
+            object.__setattr__(self, "window", tuple(w))
         if not isinstance(self.interface_forces, bool):
             try:
                 sub = tuple(sorted(set(int(k) for k in self.interface_forces)))
@@ -285,6 +303,9 @@ class Scene:
         object.__setattr__(self, "t_end", t_end)
         if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
             _fail("output.n_out", self.n_out, "an integer >= 1")
+        if self.window is not None and self.shape != "ddmp" and not self.has_interface_forces and not self.has_exchange:
+            _fail("window", list(self.window), "None unless the scene has DDMP operators (shape 'ddmp', or interface "
+                  "forces between velocity fields) or an exchange between fields")
         from jaxmpm.state import check_sampling
 
         check_sampling(self)   # every phase has particles, all inside the grid's usable region

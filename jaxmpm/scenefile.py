@@ -43,7 +43,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "grid", "boundary", "effects",
+TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "window", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
 EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "continuity", "c_h", "fragmentation",
@@ -135,6 +135,9 @@ def scene_from_dict(d: Mapping) -> Scene:
                               ("axisymmetric", (bool,), "true | false")):
         if k in d:
             kw[k] = _typed(d[k], types, k, allowed)
+    if "window" in d:
+        w = _typed(d["window"], (list,), "window", "a list of cells per axis")
+        kw["window"] = tuple(w)
     if "artificial_viscosity" in e:
         av = e["artificial_viscosity"]
         kw["artificial_viscosity"] = tuple(av) if isinstance(av, list) else av
@@ -165,6 +168,8 @@ def scene_to_dict(scene: Scene) -> dict:
          "cfl": scene.cfl, "t_end": scene.t_end, "grid": scene.grid.to_dict()}
     if scene.axisymmetric:
         d["axisymmetric"] = True
+    if scene.window is not None:
+        d["window"] = list(scene.window)
     b = dict(scene.boundary.faces)
     if scene.boundary.layers != 1:
         b["layers"] = scene.boundary.layers
@@ -217,8 +222,8 @@ def _toml_value(v) -> str:
 def scene_to_toml(scene: Scene) -> str:
     """TOML text of the scene; `load_scene` of this text gives back an equal Scene."""
     d = scene_to_dict(scene)
-    lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric")
-             if k in d]
+    lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric",
+                                                     "window") if k in d]
     for table in ("grid", "boundary", "effects", "output"):
         lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in d[table].items()]
     for key, spec in d["materials"].items():
