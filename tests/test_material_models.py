@@ -84,7 +84,7 @@ def test_johnson_cook_return_lands_on_the_hardened_yield_surface():
         assert seq == pytest.approx(Y, rel=1e-6)
 
 
-@pytest.mark.parametrize("rate", [1.0e3, 1.0e6])
+@pytest.mark.parametrize("rate", [pytest.param(1.0e3, marks=pytest.mark.slow), 1.0e6])   # one path; the lower rate in the slow set
 def test_johnson_cook_on_the_plastic_rate_lands_on_the_surface_at_its_own_plastic_rate(rate):
     """johnson_cook_plastic_rate: after every plastic step sigma_eq = (A + B eps_p^n)(1 + C ln(
     deps_p / dt / epsdot0)) with deps_p the step's own plastic increment (Johnson & Cook's

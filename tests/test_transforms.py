@@ -101,7 +101,10 @@ def test_host_driver_equals_fixed_scan(small):
     np.testing.assert_allclose(np.asarray(ha.t), [0.0, 0.5, 1.0, 1.5], rtol=1e-12)
 
 
-@pytest.mark.parametrize("mode", [True, "nested", "steps", "auto"])
+# True and "auto" run the programs of "nested" and "steps" (checkpoint_mode: the test below), so
+# they are in the slow set
+@pytest.mark.parametrize("mode", [pytest.param(True, marks=pytest.mark.slow), "nested", "steps",
+                                  pytest.param("auto", marks=pytest.mark.slow)])
 def test_checkpointing_gives_the_same_run_and_gradient(small, mode):
     """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
     the last two steps padding), "steps" (each step recomputed from its stored input) and "auto"

@@ -63,18 +63,19 @@ def test_operators_on_blocks_equal_the_whole_grid(case):
                 ddmp.nodal_interface_force(grid, dg, shp, p), ddmp.nodal_interface_force(grid, dg, None, p))
 
     args = (nv, shv, v, p, shp)
-    whole = jax.jit(lambda *a: outputs(*a, None))(*args)
-    blocks_ = jax.jit(lambda *a: outputs(*a, window))(*args)
-    for a, b in zip(whole, blocks_):
-        assert float(jnp.max(jnp.abs(a))) > 0
-        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))
-    weights = [jnp.asarray(rng.normal(size=o.shape)) for o in whole]
+    weights = [jnp.asarray(rng.normal(size=o.shape)) for o in jax.eval_shape(lambda *a: outputs(*a, None), *args)]
 
     def loss(window):
         return lambda *a: sum(jnp.sum(w * jnp.sin(o)) for w, o in zip(weights, outputs(*a, window)))
 
-    g_whole = jax.jit(jax.grad(loss(None), argnums=tuple(range(5))))(*args)
-    g_blocks = jax.jit(jax.grad(loss(window), argnums=tuple(range(5))))(*args)
+    def both(*a):   # one program for the whole grid and the blocks, values and gradients
+        grads = [jax.grad(loss(w_), argnums=tuple(range(5)))(*a) for w_ in (None, window)]
+        return outputs(*a, None), outputs(*a, window), grads
+
+    whole, blocks_, (g_whole, g_blocks) = jax.jit(both)(*args)
+    for a, b in zip(whole, blocks_):
+        assert float(jnp.max(jnp.abs(a))) > 0
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))
     for a, b in zip(g_whole, g_blocks):   # the nodal volume's gradient reaches the operators through A and V
         np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-11 * float(jnp.max(jnp.abs(a))))
 
@@ -152,14 +153,16 @@ def test_exchange_on_the_shared_block_equals_the_whole_grid(shared_block, fits):
     def force(lay, m, vol, v):
         return exchange_force(lay, params, m, vol, v, dt, 1e-20)
 
-    F0 = jax.jit(lambda *a: force(whole, *a))(m, vol, v)
-    F1 = jax.jit(lambda *a: force(lay, *a))(m, vol, v)
+    w = jnp.asarray(rng.normal(size=v.shape)) / (2700.0 * float(jnp.max(vol)) * 1e6)   # ~ 1 / F
+
+    def both(*a):   # one program: values and gradients, whole grid and blocks
+        return [(force(l, *a), jax.grad(lambda *a: jnp.sum(w * force(l, *a) ** 2), argnums=(0, 1, 2))(*a))
+                for l in (whole, lay)]
+
+    (F0, g0), (F1, g1) = jax.jit(both)(m, vol, v)
     assert float(jnp.max(jnp.abs(F0))) > 0
     np.testing.assert_allclose(jnp.sum(F0, 0), 0.0, atol=1e-12 * float(jnp.max(jnp.abs(F0))))
     np.testing.assert_allclose(F1, F0, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(F0))))
-    w = jnp.asarray(rng.normal(size=F0.shape)) / float(jnp.max(jnp.abs(F0)))
-    g0 = jax.jit(jax.grad(lambda *a: jnp.sum(w * force(whole, *a) ** 2), argnums=(0, 1, 2)))(m, vol, v)
-    g1 = jax.jit(jax.grad(lambda *a: jnp.sum(w * force(lay, *a) ** 2), argnums=(0, 1, 2)))(m, vol, v)
     for a, b in zip(g0, g1):
         np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-11 * float(jnp.max(jnp.abs(a))))
     shared = (jnp.sum(vol > 0, 0) >= 2).reshape((1,) + nodes)
