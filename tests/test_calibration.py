@@ -96,7 +96,8 @@ print("sharded == unsharded")
 
 @pytest.mark.slow                # 43 s; the two-device step is checked in the default run (test_distributed)
 def test_sharded_ensemble_on_two_host_devices_equals_the_unsharded_one():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
+               JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
     r = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "sharded == unsharded" in r.stdout

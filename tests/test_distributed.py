@@ -101,7 +101,8 @@ print("equal: vmap")
 
 
 def run_on_two_devices(gradient):
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
+               JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
     script = f"GRADIENT = {bool(gradient)}\n" + TWO_DEVICE_SCRIPT
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
