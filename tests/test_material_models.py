@@ -455,8 +455,12 @@ def test_spall_fails_the_target_where_release_waves_meet(sigma_spall, spalls):
         x0 = np.asarray(jaxmpm.init_state(scene, params).x[sl, 0])
         assert 0.0055 < x0[failed].mean() < 0.0095               # inside the plate, nearer its free face
         assert np.all(np.asarray(final.pressure)[np.asarray(final.damage) >= 1] >= 0.0)
-        dev = np.asarray(final.stress[:, 0, 0] + final.pressure)
-        assert np.all(dev[np.asarray(final.damage) >= 1] == 0.0)
+        # no shear: the stress is -p I. Recovered as stress + p, the deviator carries the rounding of
+        # p, which XLA may evaluate twice (once for each output) with a different rounding (1 ulp at
+        # LLVM optimisation level 0): at most 2 ulp of p, against 1e8 Pa of intact shear
+        dead = np.asarray(final.damage) >= 1
+        dev = np.asarray(final.stress[:, 0, 0] + final.pressure)[dead]
+        assert np.all(np.abs(dev) <= 2 * np.spacing(np.abs(np.asarray(final.pressure)[dead])))
 
 
 @pytest.mark.parametrize("fragmentation", ["plastic", "failed"])
