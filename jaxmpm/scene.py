@@ -172,13 +172,13 @@ class Scene:
     fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
     axisymmetric: bool = False
-    window: tuple[int, ...] | None = None
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
     t_end: float = 1e-3
     n_out: int = 10
     name: str = "scene"
     description: str = ""
+    window: tuple[int, ...] | None = None
 
     def __post_init__(self):
         if not isinstance(self.grid, Grid):
