@@ -262,8 +262,11 @@ def _cell_integrator(grid, dtype, axisymmetric, r_c=None):
         r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((1, -1) + (1,) * (d - 1))
 
     def integrate(tc, T, Ts):
-        a = plain(tc, T)
-        return r_c.reshape(r_c.shape + (1,) * (a.ndim - r_c.ndim)) * a + grid.h * plain(tc, Ts)
+        # r_c (tc T) + h (tc Ts) as one product [r_c tc, h tc] @ [T; Ts]: reverse mode then sums the
+        # cotangents of the integrals (one per use of A, V) once, where the two products' transposes
+        # each summed them (the debris cloud's gradient summed eleven (K, cells, 32) arrays twice)
+        rc = jnp.broadcast_to(r_c[..., None], tc.shape)
+        return plain(jnp.concatenate([rc * tc, grid.h * tc], -1), np.concatenate([T, Ts], 1))
 
     return integrate
 
