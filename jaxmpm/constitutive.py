@@ -98,6 +98,8 @@ def per_model(lay, params, fn, *arrays):
     scene = lay.scene
     outs, order = [], []
     for name, members, part in model_groups(lay):
+        if (part.stop - part.start if isinstance(part, slice) else part.size) == 0:
+            continue
         model = model_of(name)
         args = [None if a is None else a[part] for a in arrays]
         if len(members) == 1:
@@ -106,7 +108,7 @@ def per_model(lay, params, fn, *arrays):
             sizes = [lay.slices[i].stop - lay.slices[i].start for i in members]
             consts = [params.phases[scene.phases[i].name] for i in members]
             c = {k: jnp.concatenate([jnp.broadcast_to(jnp.asarray(ci[k]), (n,)) for ci, n in zip(consts, sizes)])
-                 for k in consts[0]}
+                 for k in consts[0] if all(k in ci for ci in consts)}       # the kind's constants: every phase has them
             present = [i for i, a in enumerate(args) if a is not None]
 
             def one(c, *xs, model=model, present=present, n_args=len(args)):
