@@ -229,8 +229,9 @@ def _flow_stress(strength, c, eps, epsdot, e, p):
     if strength == "johnson_cook_thermal":
         scale = scale * (1 - _safe_pow(homologous_temperature(c, e), c["m"]))
     eps_s = jnp.maximum(eps, 1e-12)
-    Y = (c["A"] + c["B"] * eps_s ** c["n"]) * scale
-    dY = c["B"] * c["n"] * eps_s ** (c["n"] - 1) * scale
+    hardening = eps_s ** c["n"]                  # one power: eps^(n-1) = eps^n / eps
+    Y = (c["A"] + c["B"] * hardening) * scale
+    dY = c["B"] * c["n"] * (hardening / eps_s) * scale
     return Y, dY
 
 
