@@ -84,13 +84,14 @@ def test_johnson_cook_return_lands_on_the_hardened_yield_surface():
         assert seq == pytest.approx(Y, rel=1e-6)
 
 
-@pytest.mark.parametrize("strength", ["johnson_cook", "johnson_cook_thermal"])
+@pytest.mark.parametrize("strength", ["johnson_cook", "johnson_cook_thermal", "johnson_cook_plastic_rate",
+                                      "johnson_cook_thermal_plastic_rate"])
 def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     """The radial return's plastic increment is differentiated implicitly (its Newton iterations are
     not): its derivatives with respect to the trial stress, eps_p, the rate, the energy and a
     constant equal central differences of the returned values, at first yield (eps_p = 0, where the
     hardening's slope is infinite) and with prior plastic strain, and the returned stress lies on
-    the yield surface."""
+    the yield surface (with the plastic rate: at the step's own plastic rate dl / dt)."""
     from jaxmpm.materials.hydro import _flow_stress, radial_return
     c = {k: jnp.asarray(v) for k, v in library_material("al2024").constants}
     rng = np.random.default_rng(3)
@@ -105,13 +106,15 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     seq0 = np.sqrt(1.5 * np.sum(dev * dev, axis=(1, 2)))
     s_tr = jnp.asarray(dev * (np.asarray(Y0) * rng.uniform(1.05, 3.0, n) / seq0)[:, None, None])   # plastic, 5-200% over
 
+    dt = 1e-8 if strength.endswith("_plastic_rate") else None      # plastic rates dl / dt of 1e3-1e6 /s
+
     def returned(s_tr, eps, epsdot, e, A):
         cc = dict(c, A=A)
-        s, dl = radial_return(strength, cc, s_tr, eps, epsdot, e, jnp.zeros(n))
+        s, dl = radial_return(strength, cc, s_tr, eps, epsdot, e, jnp.zeros(n), dt=dt)
         return jnp.sum(s * s, axis=(1, 2)) * 1e-16 + dl, s
 
-    s, dl = radial_return(strength, c, s_tr, eps, epsdot, e, jnp.zeros(n))
-    Y, _ = _flow_stress(strength, c, eps + dl, epsdot, e, 0.0)
+    s, dl = radial_return(strength, c, s_tr, eps, epsdot, e, jnp.zeros(n), dt=dt)
+    Y, _ = _flow_stress(strength, c, eps + dl, epsdot if dt is None else dl / dt, e, 0.0)
     np.testing.assert_allclose(np.sqrt(1.5 * np.sum(np.asarray(s) ** 2, axis=(1, 2))), Y, rtol=1e-9)   # on the surface
     args = [s_tr, eps, epsdot, e, c["A"]]
     for i, (x, h) in enumerate(zip(args, [1e-5 * float(jnp.max(jnp.abs(s_tr))), 1e-7, None, 1.0, 1e2])):

@@ -37,7 +37,8 @@ Strength (shear modulus G):
                          Johnson & Cook define it (same constants)
 epsdot is the equivalent total strain rate sqrt(2/3 D':D') (the plastic one for the *_plastic_rate
 kinds); the hardening is solved by Newton's method on sigma_eq_trial - 3 G dlambda =
-Y(eps_p + dlambda, rate) (8 iterations, 30 with the plastic rate; fixed for tracing).
+Y(eps_p + dlambda, rate) (8 iterations, 30 with the plastic rate; fixed for tracing),
+differentiated implicitly at the root rather than through the iterations.
 
 Failure (damage in [0, 1], failed at 1; failed: s = 0 and p >= 0):
   spall                  damage = 1 once the largest principal stress exceeds sigma_spall
@@ -235,32 +236,54 @@ def _flow_stress(strength, c, eps, epsdot, e, p):
     return Y, dY
 
 
-def _implicit_root(residual, dl0, iterations, *inputs):
-    """The root dl in [0, dl0] of f(dl, *inputs), residual(dl, *inputs) = (f, -df/d(dl) > 0), by
-    `iterations` Newton steps from dl0 on the inputs' values, differentiated implicitly: its
-    tangent is f's tangent at the root over the slope (the implicit function theorem, from
+def _implicit_root(residual, solve, dl0, *inputs):
+    """The root dl in [0, dl0] of f(dl, *inputs), residual(dl, *inputs) = (f, -df/d(dl) > 0),
+    found by solve(dl0, *inputs) on the inputs' values and differentiated implicitly: its tangent
+    is f's tangent at the root over the slope (the implicit function theorem, from
     f(dl(x), x) = 0), one evaluation of f where differentiating the iterations would transpose
-    each of them. The value is the last iterate's. Newton converges here (Johnson-Cook on Al 2024,
-    20,000 sampled states with overstress up to 30x: the returned stress is within 7e-11 of the
-    trial stress of the exact root after 8 iterations at first yield, eps_p = 0, where the
-    hardening's slope is infinite, and to round-off after 2 where eps_p > 0), so the implicit
-    tangent is the root's."""
+    each of them. The value is the solver's. This holds where the solver has converged: Newton on
+    Johnson-Cook (Al 2024, 20,000 sampled states with overstress up to 30x) returns a stress within
+    7e-11 of the trial stress of the exact root after 8 iterations at first yield, eps_p = 0, where
+    the hardening's slope is infinite, and to round-off after 2 where eps_p > 0."""
     sg = jax.lax.stop_gradient
-    values = sg(inputs)
-    dl = sg(dl0)
-    for _ in range(iterations):
-        f, slope = residual(dl, *values)
-        dl = jnp.clip(dl + f / slope, 0.0, sg(dl0))
+    dl = solve(sg(dl0), *sg(inputs))
     f, slope = residual(dl, *inputs)
     step = f / sg(slope)                  # about zero at the root; its tangent is the root's
     return dl + (step - sg(step))
+
+
+def _newton(residual, iterations):
+    """solve(dl0, *inputs): `iterations` Newton steps on residual from dl0, kept in [0, dl0]."""
+    def solve(dl0, *inputs):
+        dl = dl0
+        for _ in range(iterations):
+            f, slope = residual(dl, *inputs)
+            dl = jnp.clip(dl + f / slope, 0.0, dl0)
+        return dl
+    return solve
+
+
+def _bracketed_newton(residual, iterations):
+    """solve(dl0, *inputs) for f(0+) > 0 > f(dl0): Newton from dl0 kept inside the bracket that
+    the signs of f narrow, bisection where a step would leave it."""
+    def solve(dl0, *inputs):
+        dl, lo, hi = dl0, jnp.zeros_like(dl0), dl0
+        for _ in range(iterations):
+            f, slope = residual(dl, *inputs)
+            lo, hi = jnp.where(f > 0, dl, lo), jnp.where(f > 0, hi, dl)
+            step = dl + f / slope
+            dl = jnp.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        return dl
+    return solve
 
 
 def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     """Return the trial deviator onto Y(eps_p + dlambda): (s, dlambda). Newton on
     f(dl) = sigma_eq_trial - 3 G dl - Y(eps_p + dl), started at the perfectly plastic step. With a
     *_plastic_rate strength the rate in Y is dl / dt (the step's equivalent plastic strain rate; the
-    yield test uses the reference rate) and dY/d(dl) has the rate term's C Y_0 / dl."""
+    yield test uses the reference rate), dY/d(dl) has the rate term's C Y_0 / dl, and the Newton
+    steps (30) are kept inside the bracket [0, dl0]. Both are differentiated implicitly
+    (`_implicit_root`)."""
     G = c["G"]
     seq = equivalent_stress(s_tr)
     plastic_rate = strength.endswith("_plastic_rate")
@@ -273,18 +296,16 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
             Y, dY = _flow_stress(strength, c, eps + dl, epsdot, e, p)
             return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
 
-        dl = _implicit_root(residual, dl0, iterations, c, seq, eps, epsdot, e, p)
-    elif plastic_rate:      # f(0+) > 0 > f(dl0): Newton kept inside the bracket, bisection where it leaves it
-        lo, hi = jnp.zeros_like(dl0), dl0
-        for _ in range(30):
+        dl = _implicit_root(residual, _newton(residual, iterations), dl0, c, seq, eps, epsdot, e, p)
+    elif plastic_rate:      # f(0+) > 0 > f(dl0)
+        def residual(dl, c, seq, eps, e, p, dt):
             rate = dl / dt
             Y, dY = _flow_stress(strength, c, eps + dl, rate, e, p)
             above = rate > c["epsdot0"]
             dY = dY + jnp.where(above, Y / rate_factor(c, rate) * c["C"] / jnp.where(above, dl, 1.0), 0.0)
-            f = seq - 3 * G * dl - Y
-            lo, hi = jnp.where(f > 0, dl, lo), jnp.where(f > 0, hi, dl)
-            step = dl + f / (3 * G + dY)
-            dl = jnp.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+            return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
+
+        dl = _implicit_root(residual, _bracketed_newton(residual, 30), dl0, c, seq, eps, e, p, dt)
     dl = jnp.where(plastic, dl, 0.0)
     factor = jnp.where(plastic, (seq - 3 * G * dl) / seq, 1.0)
     return s_tr * factor[:, None, None], dl
