@@ -244,7 +244,11 @@ def _implicit_root(residual, solve, dl0, *inputs):
     each of them. The value is the solver's. This holds where the solver has converged: Newton on
     Johnson-Cook (Al 2024, 20,000 sampled states with overstress up to 30x) returns a stress within
     7e-11 of the trial stress of the exact root after 8 iterations at first yield, eps_p = 0, where
-    the hardening's slope is infinite, and to round-off after 2 where eps_p > 0."""
+    the hardening's slope is infinite, and to round-off after 2 where eps_p > 0. The bracketed
+    Newton of the plastic-rate kinds leaves |f| within 2e-9 of sigma_eq_trial after its 30 steps
+    (steel 42CrMo4 and Al 2024, 20,000 sampled states each: 30% at eps_p = 0, dt 1e-10 to 1e-6 s,
+    overstress up to 30x), and its gradients in the steel Taylor bar equal those of reverse mode
+    through the 30 steps to 3e-12 where eps_p > 0."""
     sg = jax.lax.stop_gradient
     dl = solve(sg(dl0), *sg(inputs))
     f, slope = residual(dl, *inputs)
