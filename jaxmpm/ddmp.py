@@ -320,7 +320,10 @@ def _bilinear(unrolled, reduced):
     def f_jvp(primals, tangents):
         (x, A), (dx, dA) = primals, tangents
         g = reduced if native_reductions() else unrolled
-        return unrolled(x, A), g(dx, A) + g(x, dA)
+        # the value through f itself: where this rule is applied inside a linearisation that the
+        # step evaluates (the continuity form's jax.vjp), an outer derivative then meets f again
+        # and takes this tangent, not the transpose of the unrolled sums (a padded copy per slice)
+        return f(x, A), g(dx, A) + g(x, dA)
 
     return f
 
