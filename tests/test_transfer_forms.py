@@ -185,6 +185,37 @@ def test_contractions_inside_a_linearisation_keep_their_reduced_tangent():
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
+def test_add_corners_transposes_to_the_corner_slices(dim):
+    """Reverse mode through the corner sums (E11, E12, E13, R3) evaluates `corners` of the
+    cotangent: no loop over the corners carrying the whole cotangent of c (the transpose of the
+    forward's slab loop), no padded copy of c per corner. Values, gradients, tangents and a
+    batched second derivative against the sums of shifted copies."""
+    rng = np.random.default_rng(40 + dim)
+    cells = (3, 4, 2)[:dim]
+    c = jnp.asarray(rng.normal(size=(2,) + cells + (2**dim, 2)))
+    dc = jnp.asarray(rng.normal(size=c.shape))
+    w = jnp.asarray(rng.normal(size=(2,) + tuple(n + 1 for n in cells) + (2,)))
+
+    def loss(c, add):
+        return jnp.sum(w * jnp.sin(add(c, dim)))
+
+    jaxpr = jax.make_jaxpr(jax.grad(lambda c: loss(c, ddmp.add_corners)))(c)
+    loops = [e for e in _eqns(jaxpr.jaxpr) if e.primitive.name in ("while", "scan")]
+    assert len(loops) == 1, f"{len(loops)} loops in the gradient: the forward's slab loop and its transpose"
+    padded = [e for e in _eqns(jaxpr.jaxpr) if e.primitive.name == "pad" and e.outvars[0].aval.shape == c.shape]
+    assert not padded, f"{len(padded)} padded copies of c in the gradient"
+    g = jax.grad(lambda c: loss(c, ddmp.add_corners))(c)
+    g_ref = jax.grad(lambda c: loss(c, add_corners_shifted))(c)
+    np.testing.assert_allclose(g, g_ref, rtol=RTOL, atol=1e-14)
+    t = jax.jvp(lambda c: ddmp.add_corners(c, dim), (c,), (dc,))[1]
+    np.testing.assert_allclose(t, add_corners_shifted(dc, dim), rtol=RTOL, atol=1e-14)
+    hvp = jax.vmap(lambda v: jax.jvp(jax.grad(lambda c: loss(c, ddmp.add_corners)), (c,), (v,))[1])(jnp.stack([c, dc]))
+    hvp_ref = jax.vmap(lambda v: jax.jvp(jax.grad(lambda c: loss(c, add_corners_shifted)), (c,), (v,))[1])(jnp.stack([c, dc]))
+    np.testing.assert_allclose(hvp, hvp_ref, rtol=1e-11, atol=1e-13)
+    assert float(jnp.abs(hvp_ref).max()) > 0
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
 def test_stencil_contractions_equal_einsums(dim):
     rng = np.random.default_rng(20 + dim)
     grid = Grid(cells=(4, 3, 2)[:dim], h=0.25, origin=(0.0,) * dim)
