@@ -236,7 +236,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     checkpoint: how reverse mode through the fixed-length driver bounds its memory.
       False: no checkpointing; every step's intermediates are stored (MiB per step: short runs only).
       "steps": each step recomputed once in reverse from its stored input state: memory grows as
-        the number of steps (one State each), the gradient costs about 4 forward runs.
+        the number of steps (one State each), the gradient costs about 4-5 forward runs.
       "nested" or True: two-level checkpointing (`_nested_scan`): memory grows as the square root
         of the steps per output, for one more forward pass (about 5-6 forward runs).
       "auto": "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else "nested".
