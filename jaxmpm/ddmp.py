@@ -120,7 +120,8 @@ def _add_corners_loop(c, dim):
 
 def _add_corners_padded(c, dim):
     """add_corners as a sum of 2^d copies of the corners' values, each padded by its corner's
-    offset: linear in c, and transposed by JAX into the slices of `corners`."""
+    offset: c (K, *cells, 2^d, ...) -> (K, *nodes, ...), in c's units; linear in c, and transposed
+    by JAX into the slices of `corners`."""
     n_extra = c.ndim - 2 - dim
     pieces = jax.lax.split(c, (1,) * 2**dim, axis=1 + dim)     # transposed: one concatenate
     out = 0
