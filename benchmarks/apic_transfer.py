@@ -35,6 +35,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
+from devices import describe   # benchmarks/devices.py
+
 HERE = Path(__file__).resolve().parent
 
 
@@ -154,7 +156,7 @@ def main():
         best, med = min(ts) / steps, statistics.median(ts) / steps
         rows.append(dict(form=form, kind=kind, dim=a.dim, n_grid=n_grid, particles=n, steps=steps,
                          ms_per_step_min=1e3 * best, ms_per_step_median=1e3 * med,
-                         mpart_steps_per_s=n / best / 1e6, device=str(jax.devices()[0]), cpu_count=os.cpu_count(),
+                         mpart_steps_per_s=n / best / 1e6, device=describe(), cpu_count=os.cpu_count(),
                          jax_version=jax.__version__, date=stamp))
     by = {(r["form"], r["kind"]): r for r in rows}
     print(f"APIC step, mpm88 {a.dim}D {n_grid}^{a.dim}, {n} particles, float32, {steps} steps per run, "

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from devices import describe   # benchmarks/devices.py
+
 BOXES = (((0.40, 0.62), (0.60, 0.80)), ((0.20, 0.50), (0.80, 0.60)), ((0.20, 0.20), (0.80, 0.48)))
 
 
@@ -107,7 +109,7 @@ def main():
             t0 = time.perf_counter()
             jax.block_until_ready(p["fn"](*p["args"]))
             p["best"] = min(p["best"], time.perf_counter() - t0)
-    print(f"DDMP nodal velocity gradient, {a.n_grid}^2 grid, float32, {jax.devices()[0]}, {os.cpu_count()} CPUs, "
+    print(f"DDMP nodal velocity gradient, {a.n_grid}^2 grid, float32, {describe()}, {os.cpu_count()} CPUs, "
           f"jax {jax.__version__} (fastest of {a.repeats})")
     print(f"{'fields':>6} {'cells/field':>11} {'form':>12} {'mode':>8} {'ms':>8} {'rel. diff':>9}")
     rows = []
@@ -116,7 +118,7 @@ def main():
               f"{p['rel_diff']:>9.1e}")
         rows.append(dict(fields=p["fields"], active_cell_fraction_per_field=p["cells_per_field"], form=p["form"],
                          mode=p["mode"], ms=1e3 * p["best"], max_rel_diff_to_whole_grid=p["rel_diff"],
-                         device=str(jax.devices()[0]), cpus=os.cpu_count(), jax=jax.__version__,
+                         device=describe(), cpus=os.cpu_count(), jax=jax.__version__,
                          python=platform.python_version()))
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w", newline="") as f:

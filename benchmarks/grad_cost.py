@@ -26,6 +26,8 @@ import time
 
 import jax
 
+from devices import describe   # benchmarks/devices.py
+
 jax.config.update("jax_enable_x64", True)
 
 
@@ -77,7 +79,7 @@ def measure(n_steps, mode, max_bytes):
     mem_fwd, mem_vg = program_bytes(c_fwd), program_bytes(c_vg)
     row = dict(steps=n_steps, checkpoint=mode, particles=n_particles, dt=dt, compile_s=round(compile_s, 2),
                forward_peak_mib=mem_fwd / 2**20, gradient_peak_mib=mem_vg / 2**20,
-               forward_s=float("nan"), gradient_s=float("nan"), ratio=float("nan"), finite=None)
+               forward_s=float("nan"), gradient_s=float("nan"), ratio=float("nan"), finite=None, device=describe())
     if mem_vg > max_bytes:
         return row
     jax.block_until_ready(c_fwd(theta))             # warm
@@ -130,7 +132,7 @@ def main():
         if m not in ("nested", "steps", "none"):
             raise SystemExit(f"--modes: {m!r} is invalid: allowed nested, steps, none")
     rows = []
-    print(f"{jax.default_backend()} ({platform.processor() or platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}")
+    print(f"{describe()} ({platform.processor() or platform.machine()}, {os.cpu_count()} cores), jax {jax.__version__}")
     print(f"{'N':>6} {'ckpt':>7} {'fwd MiB':>9} {'grad MiB':>9} {'fwd s':>8} {'grad s':>8} {'ratio':>6}")
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, "grad_cost.csv")

@@ -23,6 +23,8 @@ import time
 
 import jax
 
+from devices import describe   # benchmarks/devices.py
+
 
 def scene_for(n_fields, n_grid, continuity="auto", window=False):
     """The scene; window=True: with each field's DDMP operators on a block of cells that holds the
@@ -104,7 +106,7 @@ def plot(rows, path):
     ax.axhline(2.0, color="r", ls="--", lw=1, label="target: 3 fields <= 2x one field")
     ax.set_xticks(range(len(rows)), labels, fontsize="small")
     ax.set_ylabel("cost per particle-step\n/ one field, same DDMP grid")
-    ax.set_title(f"multi-field DDMP step ({rows[0]['particles']} particles; {jax.devices()[0]}, {os.cpu_count()} CPUs)",
+    ax.set_title(f"multi-field DDMP step ({rows[0]['particles']} particles; {describe()}, {os.cpu_count()} CPUs)",
                  fontsize="medium")
     ax.legend(fontsize="small")
     fig.tight_layout()
@@ -127,7 +129,7 @@ def main():
     rows = measure_all(configs, a.n_grid, a.steps, a.repeats)
     base = {w: next(r for r in rows if r["fields"] == 1 and (r["window"] != "grid") == w)["ns_per_particle_step"]
             for w in (False, True)}
-    print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {jax.devices()[0]}, "
+    print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {describe()}, "
           f"{os.cpu_count()} CPUs, jax {jax.__version__}")
     print("x 1 field: against one field computed the same way (whole grid, or blocks); x grid: against one field on the whole grid")
     print(f"{'fields':>6} {'continuity':>10} {'DDMP on':>8} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} "
@@ -142,7 +144,7 @@ def main():
         w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["device", "cpus", "jax", "python"])
         w.writeheader()
         for r in rows:
-            w.writerow({**r, "device": str(jax.devices()[0]), "cpus": os.cpu_count(), "jax": jax.__version__,
+            w.writerow({**r, "device": describe(), "cpus": os.cpu_count(), "jax": jax.__version__,
                         "python": platform.python_version()})
     png = os.path.splitext(a.out)[0] + ".png"
     plot(rows, png)

@@ -38,9 +38,12 @@ caches, memory and XLA_FLAGS do not leak between them; they run one after anothe
 Run:  python benchmarks/throughput.py                  # 2D, 128^2 grid, 500 steps
       python benchmarks/throughput.py --dim 3          # 3D, 64^3 grid, 100 steps
       python benchmarks/throughput.py --only jaxmpm --steps 200 --repeats 5
+      python benchmarks/throughput.py --dim 3 --n-grid 128 --configs jaxmpm,jax-naive   # the issue's GPU size
       python benchmarks/throughput.py --replot benchmarks/results/throughput.csv   # PNG of a table
 Writes benchmarks/results/throughput.csv (2D) or throughput_3d.csv (3D; or --out) with device, CPU
 count, jax version and date, and a bar chart of the rates beside it (same name, .png).
+On a GPU (JAX's default backend) the CPU-only configurations are left out unless --configs names
+them; the peer scripts then run there too where they can (jax-naive on JAX's default backend).
 """
 from __future__ import annotations
 
@@ -56,6 +59,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from devices import describe   # benchmarks/devices.py
 
 HERE = Path(__file__).resolve().parent
 PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"   # /work/shared/bench/peers
@@ -73,11 +78,13 @@ JAXMPM = {
 }
 # peer configurations: name -> (script, module it needs, extra XLA flag or None, dims it covers)
 PEERS = {
-    "jax-naive": ("jax_mpm.py", "jax", None, (2, 3)),
+    "jax-naive": ("jax_mpm.py", "jax", None, (2, 3)),   # on JAX's default backend (a GPU where there is one)
     "jax-naive+ynn": ("jax_mpm.py", "jax", YNN_FLAG, (2, 3)),
     "taichi-cpu": ("taichi_mpm.py", "taichi", None, (2, 3)),
     "warp-cpu": ("warp_mpm.py", "warp", None, (2,)),
 }
+# configurations that measure the CPU alone: left out by default where JAX's default backend is a GPU
+CPU_ONLY = ("jax-naive+ynn", "taichi-cpu", "warp-cpu", "jaxmpm-split-cores", "jaxmpm-xla-defaults")
 FIELDS = ["config", "dim", "n_grid", "particles", "steps", "dt", "seconds", "compile_s", "mpart_steps_per_s",
           "ratio_to_jax_naive", "finite", "stable", "note", "xla_flags", "device", "cpu_count", "jax_version", "date"]
 
@@ -175,10 +182,17 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int) -> di
     return dict(config=name, dim=dim, n_grid=n_grid, particles=n, steps=steps, dt=float(f"{float(dt):.6g}"), seconds=sec,
                 compile_s=compile_s, mpart_steps_per_s=n * steps / sec / 1e6, finite=finite, stable=stable,
                 note=note + f"; runs {', '.join('%.3f' % t for t in times)} s",
-                device=str(jax.devices()[0]), jax_version=jax.__version__)
+                device=describe(), jax_version=jax.__version__)
 
 
 # ----------------------------------------------------------------------------- parent: run everything
+def default_backend() -> str:
+    """JAX's default backend ("cpu", "gpu", ...), asked of a child process: the parent keeps no
+    device (a GPU client would hold memory the children need)."""
+    p = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"], capture_output=True, text=True)
+    return p.stdout.strip().splitlines()[-1] if p.returncode == 0 and p.stdout.strip() else "cpu"
+
+
 def run_child(cmd: list[str], env: dict, cwd: Path, timeout: float = 900) -> dict:
     """Run one subprocess and parse the last line of its stdout as JSON; errors become a note."""
     try:
@@ -199,8 +213,10 @@ def run_peer(name: str, a) -> dict:
         return row | dict(note="peer covers " + "/".join(f"{d}D" for d in dims) + " only")
     if importlib.util.find_spec(module) is None:
         return row | dict(note="not installed")
+    if not (Path(a.peers) / script).is_file():
+        return row | dict(note=f"no {script} in --peers {a.peers}")
     cmd = [sys.executable, script, str(a.n_grid), str(a.dim), "1.0", str(a.steps)]
-    results = [run_child(cmd, child_env(flag), PEERS_DIR) for _ in range(a.repeats)]
+    results = [run_child(cmd, child_env(flag), Path(a.peers)) for _ in range(a.repeats)]
     ok = [r for r in results if "seconds" in r]
     if not ok:
         return row | dict(note=results[-1].get("note", "failed"))
@@ -256,6 +272,9 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=None, help="steps per timed run (default 500 in 2D, 100 in 3D)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     ap.add_argument("--only", choices=("jaxmpm", "peers"), default=None)
+    ap.add_argument("--configs", default=None, help="comma-separated configurations to run (default: all; where JAX's "
+                    "default backend is a GPU, all but the CPU-only " + ", ".join(CPU_ONLY) + ")")
+    ap.add_argument("--peers", default=str(PEERS_DIR), help="folder of the peer scripts (default ../shared/bench/peers)")
     ap.add_argument("--out", default=None, help="CSV to write (default results/throughput.csv in 2D, "
                     "results/throughput_3d.csv in 3D)")
     ap.add_argument("--replot", default=None, metavar="CSV", help="only draw the PNG of a table this script wrote")
@@ -277,6 +296,14 @@ def main(argv=None):
 
     rows = []
     names = ([] if a.only == "jaxmpm" else list(PEERS)) + ([] if a.only == "peers" else list(JAXMPM))
+    if a.configs:
+        wanted = [c.strip() for c in a.configs.split(",") if c.strip()]
+        unknown = sorted(set(wanted) - set(PEERS) - set(JAXMPM))
+        if unknown:
+            ap.error(f"--configs {','.join(unknown)} is invalid: allowed {', '.join(list(PEERS) + list(JAXMPM))}")
+        names = [n for n in names if n in wanted]
+    elif default_backend() != "cpu":
+        names = [n for n in names if n not in CPU_ONLY]
     for name in names:
         t0 = time.perf_counter()
         row = run_peer(name, a) if name in PEERS else run_jaxmpm_child(name, a)
@@ -285,7 +312,8 @@ def main(argv=None):
         rows.append(row)
 
     naive = next((r.get("mpart_steps_per_s") for r in rows if r["config"] == "jax-naive"), None)
-    device = next((r["device"] for r in rows if r.get("device")), "")   # jax.devices()[0] of a JAX child
+    device = next((r["device"] for r in sorted(rows, key=lambda r: not r["config"].startswith("jaxmpm")) if r.get("device")),
+                  "")   # a jaxmpm child's (the device's model included), else a JAX peer's
     common = dict(cpu_count=os.cpu_count(), jax_version=importlib.metadata.version("jax"),
                   date=datetime.datetime.now().isoformat(timespec="seconds"))
     for r in rows:
