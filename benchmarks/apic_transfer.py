@@ -131,7 +131,7 @@ def programs(dim, n_grid, steps):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--dim", type=int, choices=(2, 3), default=2)
     ap.add_argument("--n-grid", type=int, default=None, help="cells per axis (default 128 in 2D, 48 in 3D)")
     ap.add_argument("--steps", type=int, default=None, help="steps per run (default 50 in 2D, 10 in 3D)")

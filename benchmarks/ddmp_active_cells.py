@@ -85,7 +85,7 @@ def case(n, groups, seed=0):
 def main():
     import jaxmpm
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--n-grid", type=int, default=128)
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "ddmp_active_cells.csv"))

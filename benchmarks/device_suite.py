@@ -90,7 +90,7 @@ def pack(results: Path, out: Path):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--out", required=True, help="folder for suite.log and results.tar.gz (created; must hold no "
                     "suite.log yet)")
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for all steps together (default 480)")

@@ -120,7 +120,7 @@ def plot(rows, path):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--steps", default="100,300,1000,3000,10000")
     ap.add_argument("--modes", default="nested,steps,none", help="checkpointing: nested, steps, none")
     ap.add_argument("--max-gib", type=float, default=8.0, help="run only programs needing less (GiB)")

@@ -23,7 +23,7 @@ import time
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--scene", default="mpm88", choices=("mpm88", "debris_cloud"))
     ap.add_argument("--dim", type=int, choices=(2, 3), default=2, help="mpm88 only: 2D (128^2) or 3D (64^3)")
     ap.add_argument("--host-devices", type=int, default=2, help="CPU only: XLA host devices to create (default 2)")

@@ -266,7 +266,7 @@ def plot(rows, path):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--dim", type=int, choices=(2, 3), default=2)
     ap.add_argument("--n-grid", type=int, default=None, help="grid cells per axis (default 128 in 2D, 64 in 3D)")
     ap.add_argument("--steps", type=int, default=None, help="steps per timed run (default 500 in 2D, 100 in 3D)")

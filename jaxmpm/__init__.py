@@ -2,11 +2,11 @@
 
     scene  = jaxmpm.load_scene("elastic_impact")
     params = jaxmpm.default_params(scene)
-    state  = jaxmpm.init_state(scene, params)
+    state  = jaxmpm.initial_state(scene, params)        # init_state, plus a built-in's own initial fields
     step   = jaxmpm.make_step(scene)                   # pure: step(params, state) -> state
     fast   = jaxmpm.jit(step)                          # jax.jit with jaxmpm's XLA options (compile.py)
     final, history = jaxmpm.simulate(scene, params, state, t_end=..., n_out=10)
-    final, history = jaxmpm.ensemble(scene, jaxmpm.batch.sweep(params, c_h=[0.02, 0.5]), t_end=...)
+    final, history = jaxmpm.ensemble(scene, jaxmpm.batch.sweep(params, cfl=[0.2, 0.3]), t_end=...)
 """
 from jaxmpm import batch as batch
 from jaxmpm import diagnostics as diagnostics
@@ -24,5 +24,6 @@ from jaxmpm.scenefile import load_scene as load_scene, scene_from_dict as scene_
 from jaxmpm.simulate import cfl_limit as cfl_limit, plan_steps as plan_steps, simulate as simulate
 from jaxmpm.state import State as State, init_state as init_state
 from jaxmpm.step import make_step as make_step
+from jaxmpm.scenes import initial_state as initial_state
 
 __version__ = "0.1.0"

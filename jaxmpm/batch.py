@@ -23,8 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm.compile import jit
-from jaxmpm.params import Params
-from jaxmpm.simulate import checkpoint_mode, plan_steps, simulate
+from jaxmpm.params import Params, check_params
+from jaxmpm.simulate import check_t_end, checkpoint_mode, count, plan_steps, simulate
+from jaxmpm.state import check_state
 
 
 def stack(items):
@@ -83,6 +84,14 @@ def _shard(batch, n: int):
     return jax.device_put(batch, sharding), m
 
 
+def _as_member(i, check, *args):
+    """check(*args), its ValueError prefixed with the member's index i (None: one for all)."""
+    try:
+        check(*args)
+    except ValueError as e:
+        raise ValueError(str(e) if i is None else f"member {i}: {e}") from None
+
+
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
              checkpoint=False, shard=True, allow_short=False):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
@@ -99,14 +108,21 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     from jaxmpm.scenes import initial_state
 
     t_end = scene.t_end if t_end is None else float(t_end)
-    n_out = scene.n_out if n_out is None else int(n_out)
+    n_out = scene.n_out if n_out is None else count("n_out", n_out)
+    n_steps = None if n_steps is None else count("n_steps", n_steps)
     B = batch_size(params_batch)
     members = [member(params_batch, i) for i in range(B)]
+    for i, p in enumerate(members):      # simulate runs under vmap, where it cannot check them
+        _as_member(i, check_params, scene, p)
     if state is None:
         state = stack([initial_state(scene, p) for p in members])
     batched_state = jnp.ndim(state.t) == 1
     if batched_state and int(state.t.shape[0]) != B:
         raise ValueError(f"state has a batch of {state.t.shape[0]}, params_batch {B}: allowed equal sizes")
+    for i in range(B if batched_state else 1):
+        s = member(state, i) if batched_state else state
+        _as_member(i if batched_state else None, check_state, scene, s)
+        _as_member(i if batched_state else None, check_t_end, t_end, s.t)
     if n_steps is None:
         n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end)
                       for i, p in enumerate(members))

@@ -1,12 +1,16 @@
 """The `jaxmpm` command (also `python -m jaxmpm`).
 
     jaxmpm run [SCENE|file.toml] [--out DIR] [--t-end S] [--n-out N] [--set key=value ...]
-               [--opt name=value ...] [--overwrite] [--no-progress] [--x64]
+               [--opt name=value ...] [--overwrite] [--no-progress] [--x64] [--debug]
+               [--restart-every N]
+    jaxmpm run --resume DIR [--overwrite] [--no-progress] [--restart-every N]
     jaxmpm scenes
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
 
-`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state) and
-refuses, before simulating, to overwrite any of them without --overwrite. Bad input (an unknown
+`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state), and
+<name>.restart.h5 every N chunks (`--restart-every`, 20 by default, 0: never), from which
+`--resume DIR` finishes an interrupted run; it refuses, before simulating, to overwrite any of
+them without --overwrite. Bad input (an unknown
 scene or key, a value out of range, an existing output) prints `error: <message>` to stderr and
 exits with status 2; a run that becomes non-finite exits with status 1.
 """
@@ -14,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import math
 import os
 import sys
 import time
@@ -39,11 +44,26 @@ def _load(name: str, overrides: dict, options: dict):
     from jaxmpm.scenes import BUILTINS
 
     if options and name in BUILTINS:
-        allowed = list(inspect.signature(BUILTINS[name].build).parameters)
-        for k in options:
+        parameters = inspect.signature(BUILTINS[name].build).parameters
+        allowed = list(parameters)
+        for k, v in options.items():
             if k not in allowed:
                 raise ValueError(f"--opt {k} is unknown for scene {name!r}: its options are {allowed}")
+            _check_option_type(k, v, parameters[k].default)
     return jaxmpm.load_scene(name, overrides=overrides, **options)
+
+
+def _check_option_type(name: str, value, default) -> None:
+    """A builder option must be of its default's kind: a number for a number, a string for a string."""
+    import numbers
+
+    def number(x):
+        return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+    if number(default) and not number(value):
+        raise ValueError(f"--opt {name}={value!r} is invalid: allowed a number (default {default!r})")
+    if isinstance(default, str) and not isinstance(value, str):
+        raise ValueError(f"--opt {name}={value!r} is invalid: allowed a name (default {default!r})")
 
 
 def _resume_file(folder: str) -> Path:
@@ -53,9 +73,31 @@ def _resume_file(folder: str) -> Path:
     return files[0]
 
 
+def _check_run_args(args) -> None:
+    """What `run` can check before anything is loaded: --resume continues the saved run as it was
+    (its scene, t_end, outputs and settings), and --out names a folder."""
+    from jaxmpm.scenes import DEFAULT_SCENE
+
+    if args.resume:
+        given = [flag for flag, value in (("a scene", args.scene != DEFAULT_SCENE), ("--t-end", args.t_end is not None),
+                                          ("--n-out", args.n_out is not None), ("--set", bool(args.set)),
+                                          ("--opt", bool(args.opt)), ("--debug", args.debug)) if value]
+        if given:
+            raise ValueError(f"{', '.join(given)} is invalid with --resume: the run continues with the scene, t_end and "
+                             "outputs of its restart file (allowed with --resume: --overwrite, --no-progress, "
+                             "--restart-every, --x64)")
+    elif Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ValueError(f"--out {args.out} is a file: allowed a folder (new or existing)")
+    if args.t_end is not None and not (math.isfinite(args.t_end) and args.t_end > 0):
+        raise ValueError(f"--t-end {args.t_end} is invalid: allowed a finite time > 0 s")
+    if args.n_out is not None and args.n_out < 1:
+        raise ValueError(f"--n-out {args.n_out} is invalid: allowed an integer >= 1")
+
+
 def cmd_run(args) -> int:
     import jax
 
+    _check_run_args(args)
     if args.resume:
         path = _resume_file(args.resume)
         import h5py
@@ -110,12 +152,14 @@ def cmd_run(args) -> int:
     io.write(h5, scene, history, params=params, overwrite=args.overwrite)
     io.plot_state(scene, final, png, overwrite=args.overwrite)
     print(f"done in {wall:.3g} s wall time (compilation included)")
-    print(f"  {'':<16}{'start':>14}{'end':>14}")
-    print(f"  {'t (s)':<16}{start['t']:>14.6g}{end['t']:>14.6g}")
-    print(f"  {'mass (' + io.units('mass', scene.dim, scene.axisymmetric) + ')':<16}{start['mass']:>14.6g}{end['mass']:>14.6g}")
+    w = 26
+    print(f"  {'':<{w}}{'start':>14}{'end':>14}")
+    print(f"  {'t (s)':<{w}}{start['t']:>14.6g}{end['t']:>14.6g}")
+    print(f"  {'mass (' + io.units('mass', scene.dim, scene.axisymmetric) + ')':<{w}}{start['mass']:>14.6g}{end['mass']:>14.6g}")
     for k in ("kinetic", "internal", "total_energy"):
-        label = f"{k.replace('_energy', '')} ({io.units(k, scene.dim, scene.axisymmetric)})"
-        print(f"  {label:<16}{start[k]:>14.6g}{end[k]:>14.6g}")
+        name = "total, with gravity" if k == "total_energy" and scene.gravity is not None else k.replace("_energy", "")
+        label = f"{name} ({io.units(k, scene.dim, scene.axisymmetric)})"
+        print(f"  {label:<{w}}{start[k]:>14.6g}{end[k]:>14.6g}")
     print("wrote:")
     for p in (h5, xdmf, png) + ((rfile,) if args.restart_every and not args.resume else ()):
         print(f"  {p}")
@@ -151,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser("run", help="run a scene and write HDF5 + XDMF + PNG",
-                         description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png.")
+                         description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png, and "
+                                     "<name>.restart.h5 for --resume.")
     run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
                      help=f"built-in scene name (see `jaxmpm scenes`) or a .toml file (default: {DEFAULT_SCENE})")
     run.add_argument("--out", default="out", help="output folder (default: out)")

@@ -4,28 +4,47 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, Mapping
+
+import numpy as np
 
 def _fail(name: str, value: Any, allowed: str) -> None:
     raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
 
 
+def _is_number(v: Any) -> bool:
+    """A real number (Python or NumPy scalar), not a bool and not a string of digits."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
 def _floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
+    """A list of finite numbers (n of them, one per axis, where n is given) as floats. A string is
+    not a list of numbers (it would be read digit by digit)."""
+    if _is_number(value):
         value = (value,)
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
+    if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
+        _fail(name, value, "a list of numbers" if n != 1 else "a number")
+    value = tuple(value)
+    if not all(_is_number(v) for v in value):
         _fail(name, value, "a list of numbers")
-    if any(isinstance(v, bool) for v in value):
-        _fail(name, value, "a list of numbers")
+    out = tuple(float(v) for v in value)
     if n is not None and len(out) != n:
         _fail(name, value, f"a list of {n} numbers (one per axis)")
     if not all(math.isfinite(v) for v in out):
         _fail(name, value, "finite numbers")
     return out
 
+
+def _float(name: str, value: Any) -> float:
+    """One finite number as a float (a list, even of one number, or a string is refused)."""
+    if not _is_number(value):
+        _fail(name, value, "a number")
+    if not math.isfinite(float(value)):
+        _fail(name, value, "a finite number")
+    return float(value)
 
 # ----------------------------------------------------------------------------------- geometry
 @dataclass(frozen=True)
@@ -60,7 +79,7 @@ class Sphere:
 
     def __post_init__(self):
         object.__setattr__(self, "center", _floats("geometry.center", self.center))
-        r = _floats("geometry.radius", self.radius, 1)[0]
+        r = _float("geometry.radius", self.radius)
         if not r > 0:
             _fail("geometry.radius", r, "> 0 m")
         object.__setattr__(self, "radius", r)
@@ -175,7 +194,7 @@ class Grid:
             if c < 2:
                 _fail(f"grid.cells[{d}]", c, ">= 2")
         object.__setattr__(self, "cells", cells)
-        h = _floats("grid.h", self.h, 1)[0]
+        h = _float("grid.h", self.h)
         if not h > 0:
             _fail("grid.h", h, "> 0 m")
         object.__setattr__(self, "h", h)

@@ -9,7 +9,8 @@
     params.drag_coefficient               () C_d of the exchange (E3), dimensionless (read only with scene.drag)
     params.drag_length                    () d of (E3), m (default: the cell size h)
     params.linear_drag                    () K_lin of the linear drag term, kg/(m^3 s) (only with scene.linear_drag)
-    params.c_h                            () C_h of the closure alpha = 1 - tanh(eps_ps / C_h) (E5; only with scene.c_h)
+    params.c_h                            () C_h of the closure (E5: alpha = 1 - tanh(eps_ps / C_h), times the damage D
+                                          with scene.fragmentation = 'failed'; only with scene.c_h)
     params.av_linear, params.av_quadratic () c_l, c_q of the artificial viscosity (only with scene.artificial_viscosity)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
@@ -48,7 +49,10 @@ class Params:
         if name not in self.phases[phase]:
             raise ValueError(f"params.phases[{phase!r}][{name!r}] is unknown: constants are {list(self.phases[phase])}")
         phases = {k: dict(v) for k, v in self.phases.items()}
-        phases[phase][name] = jnp.asarray(value, dtype=jnp.result_type(self.phases[phase][name]))
+        try:
+            phases[phase][name] = jnp.asarray(value, dtype=jnp.result_type(self.phases[phase][name]))
+        except (TypeError, ValueError):
+            raise ValueError(f"params.phases[{phase!r}][{name!r}] = {value!r} is invalid: allowed a number") from None
         return dataclasses.replace(self, phases=phases)
 
 
@@ -83,6 +87,18 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def _check_shapes(params: Params, d: int) -> None:
+    """One run's Params hold scalars (and (d,) vectors for gravity and the body forces, checked
+    with their values); an ensemble's batch is checked member by member."""
+    leaves = [(f"params.phases[{p!r}][{k!r}]", v, ()) for p, c in params.phases.items() for k, v in c.items()]
+    leaves += [(f"params.{n}", getattr(params, n), ()) for n in ("gravity_ramp", "damping", "cfl", "drag_coefficient",
+                                                                  "drag_length", "linear_drag", "c_h", "av_linear", "av_quadratic")]
+    for name, value, shape in leaves:
+        if _is_concrete(value) and np.shape(value) != shape:
+            raise ValueError(f"{name} has shape {np.shape(value)}: allowed a number "
+                             "(one run's Params; an ensemble takes a batch of them, jaxmpm.batch.sweep / stack)")
+
+
 def check_params(scene, params: Params) -> None:
     """Raise ValueError naming the field if a concrete Param is out of range or does not fit the
     scene. Traced values (under jit/grad/vmap) are skipped: this is a host-side check."""
@@ -92,6 +108,7 @@ def check_params(scene, params: Params) -> None:
     if set(params.phases) != set(names):
         raise ValueError(f"params.phases has phases {sorted(params.phases)}: the scene has {sorted(names)}")
     d = scene.dim
+    _check_shapes(params, d)
     for p in scene.phases:
         model = scene.material(p).model
         missing = sorted(set(model_of(model).constants) - set(params.phases[p.name]))
@@ -111,7 +128,7 @@ def check_params(scene, params: Params) -> None:
     for name, value in (("gravity", params.gravity), *((f"body_force[{k!r}]", b) for k, b in params.body_force.items())):
         if _is_concrete(value):
             a = np.asarray(value)
-            if a.shape[-1:] != (d,) or not np.all(np.isfinite(a)):
+            if a.shape != (d,) or not np.all(np.isfinite(a)):
                 raise ValueError(f"params.{name} = {a.tolist()} is invalid: allowed {d} finite numbers (m/s^2, one per axis)")
     if set(params.body_force) != set(scene.phase_names()):
         raise ValueError(f"params.body_force has phases {sorted(params.body_force)}: the scene has {sorted(scene.phase_names())}")
@@ -130,6 +147,16 @@ def check_params(scene, params: Params) -> None:
         unused.append("drag_coefficient (the scene has no drag)")
     if scene.linear_drag is None and _is_concrete(params.linear_drag) and np.any(np.asarray(params.linear_drag) != 0):
         unused.append("linear_drag (the scene has no linear drag)")
+    # the numbers of the effects below are read only with their effect: a value other than the
+    # placeholder default_params gives them (e.g. a sweep of C_h) would change nothing
+    for name, off, placeholder, why in (("c_h", scene.c_h is None, 1.0, "no closure (effects.c_h)"),
+                                        ("drag_length", scene.drag is None, scene.grid.h, "no drag"),
+                                        ("gravity_ramp", scene.gravity is None, 0.0, "no gravity effect"),
+                                        ("av_linear", scene.artificial_viscosity is None, 0.0, "no artificial viscosity"),
+                                        ("av_quadratic", scene.artificial_viscosity is None, 0.0, "no artificial viscosity")):
+        val = getattr(params, name)
+        if off and _is_concrete(val) and not np.allclose(np.asarray(val, dtype=float), placeholder, rtol=1e-6, atol=0.0):
+            unused.append(f"{name} (the scene has {why})")
     for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False), ("c_h", True),
                            ("av_linear", False), ("av_quadratic", False)):
         val = getattr(params, name)
@@ -139,5 +166,5 @@ def check_params(scene, params: Params) -> None:
                 raise ValueError(f"params.{name} = {a} is invalid: allowed {'> 0' if positive else '>= 0'}")
     if unused:
         raise ValueError(f"params.{unused[0]}: set it in the scene to switch the effect on")
-    if _is_concrete(params.damping) and np.any(np.asarray(params.damping) < 0):
-        raise ValueError(f"params.damping = {params.damping} is invalid: allowed >= 0 1/s")
+    if _is_concrete(params.damping) and not np.all(np.isfinite(params.damping) & (np.asarray(params.damping) >= 0)):
+        raise ValueError(f"params.damping = {params.damping} is invalid: allowed finite values >= 0 1/s")

@@ -13,12 +13,13 @@ Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 # the geometry lives in jaxmpm.geometry; its names stay importable from here
 from jaxmpm.geometry import (GEOMETRIES, Box as Box, Difference as Difference, Grid as Grid, Sphere as Sphere,
-                             _fail, _floats, geometry_from_dict as geometry_from_dict)
+                             _fail, _float, _floats, geometry_from_dict as geometry_from_dict)
 from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of
 
@@ -60,7 +61,7 @@ class Phase:
             _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
         if not isinstance(self.ppc, int) or isinstance(self.ppc, bool) or not 1 <= self.ppc <= 8:
             _fail(f"phase.{self.name}.ppc", self.ppc, "an integer in [1, 8]")
-        frac = _floats(f"phase.{self.name}.fraction", self.fraction, 1)[0]
+        frac = _float(f"phase.{self.name}.fraction", self.fraction)
         if not 0 < frac <= 1:
             _fail(f"phase.{self.name}.fraction", frac, "(0, 1]")
         object.__setattr__(self, "fraction", frac)
@@ -184,6 +185,14 @@ class Scene:
         if not isinstance(self.grid, Grid):
             _fail("grid", self.grid, "a Grid")
         dim = self.grid.dim
+        for name, kind in (("phases", Phase), ("materials", Material)):
+            items = getattr(self, name)
+            if isinstance(items, (str, bytes, Phase, Material)) or not isinstance(items, Iterable) \
+                    or not all(isinstance(x, kind) for x in items):
+                _fail(name, items, f"a tuple of {kind.__name__}")
+        for name in ("name", "description"):
+            if not isinstance(getattr(self, name), str):
+                _fail(name, getattr(self, name), "a string")
         phases = tuple(self.phases)
         if not phases:
             _fail("phase", phases, "at least one [[phase]]")
@@ -221,12 +230,12 @@ class Scene:
             _fail("transfer", self.transfer, "'apic' only with shape = 'bspline2'")
         if self.gravity is not None:
             object.__setattr__(self, "gravity", _floats("effects.gravity", self.gravity, dim))
-        ramp = _floats("effects.gravity_ramp", self.gravity_ramp, 1)[0]
+        ramp = _float("effects.gravity_ramp", self.gravity_ramp)
         if ramp < 0:
             _fail("effects.gravity_ramp", ramp, ">= 0 s")
         object.__setattr__(self, "gravity_ramp", ramp)
         if self.damping is not None:
-            c = _floats("effects.damping", self.damping, 1)[0]
+            c = _float("effects.damping", self.damping)
             if c < 0:
                 _fail("effects.damping", c, ">= 0 1/s")
             object.__setattr__(self, "damping", c)
@@ -235,12 +244,12 @@ class Scene:
         for name, unit, positive in (("drag", "", False), ("drag_length", "m", True), ("linear_drag", "kg/(m^3 s)", False)):
             val = getattr(self, name)
             if val is not None:
-                val = _floats(f"effects.{name}", val, 1)[0]
+                val = _float(f"effects.{name}", val)
                 if val < 0 or (positive and val == 0):
                     _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
                 object.__setattr__(self, name, val)
         if self.c_h is not None:
-            ch = _floats("effects.c_h", self.c_h, 1)[0]
+            ch = _float("effects.c_h", self.c_h)
             if not ch > 0:
                 _fail("effects.c_h", ch, "> 0")
             object.__setattr__(self, "c_h", ch)
@@ -293,11 +302,20 @@ class Scene:
             _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
         if not isinstance(self.boundary, Boundary):
             _fail("boundary", self.boundary, "a Boundary")
-        cfl = _floats("cfl", self.cfl, 1)[0]
+        for face, kind in self.boundary.faces:
+            if AXES.index(face.split("_")[0]) >= dim:
+                _fail(f"boundary.{face}", kind, f"faces of the {dim}D grid's axes {FACE_NAMES[:2 * dim]}")
+        for k in range(dim):
+            sides = sum(self.boundary.kind(k, side) != "free" for side in ("lo", "hi"))
+            if sides * self.boundary.layers > self.grid.cells[k]:
+                _fail("boundary.layers", self.boundary.layers,
+                      f"at most {self.grid.cells[k] // sides} on axis {AXES[k]} ({self.grid.cells[k]} cells, walls on {sides} "
+                      "side(s)): more would constrain every node of the axis")
+        cfl = _float("cfl", self.cfl)
         if not 0 < cfl <= 1:
             _fail("cfl", cfl, "(0, 1]")
         object.__setattr__(self, "cfl", cfl)
-        t_end = _floats("t_end", self.t_end, 1)[0]
+        t_end = _float("t_end", self.t_end)
         if not t_end > 0:
             _fail("t_end", t_end, "> 0 s")
         object.__setattr__(self, "t_end", t_end)

@@ -29,6 +29,32 @@ def _traced(tree) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
 
 
+def count(name: str, value, minimum: int = 1) -> int:
+    """An integer >= minimum given as an integer, an integral float or a string of digits;
+    ValueError naming the argument for anything else (a fraction is not truncated)."""
+    if not isinstance(value, bool):
+        if isinstance(value, str):
+            try:
+                value = int(value.strip())
+            except ValueError:
+                pass
+        if isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer()):
+            if int(value) >= minimum:
+                return int(value)
+    raise ValueError(f"{name} = {value!r} is invalid: allowed an integer >= {minimum}")
+
+
+def check_t_end(t_end, t0) -> float:
+    """t_end (s) as a float, finite and after the start time t0 (s)."""
+    try:
+        t_end = float(t_end)
+    except (TypeError, ValueError):
+        raise ValueError(f"t_end = {t_end!r} is invalid: allowed a number of seconds > state.t = {float(t0)} s") from None
+    if not (math.isfinite(t_end) and t_end > float(t0)):
+        raise ValueError(f"t_end = {t_end!r} is invalid: allowed a finite time > state.t = {float(t0)} s")
+    return t_end
+
+
 def cfl_limit(scene, params, state) -> float:
     """The largest stable dt (s) at `state` for CFL = 1: h / max_p (c_p + |v_p|)."""
     return float(cfl_time_step(scene, params, state, cfl=1.0))
@@ -47,8 +73,10 @@ def check_dt(scene, params, state, dt) -> None:
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """Number of scan steps that reach t_end: (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run. Call it outside jit/grad/vmap and pass it as `n_steps`."""
-    span = float(t_end) - float(state.t)
+    span = check_t_end(t_end, state.t) - float(state.t)
     if dt is not None:
+        if not (math.isfinite(float(dt)) and float(dt) > 0):
+            raise ValueError(f"dt = {dt!r} is invalid: allowed a finite time step > 0 s")
         return max(1, math.ceil(span / float(dt) * (1 + 1e-9)))
     return max(1, math.ceil(safety * span / float(cfl_time_step(scene, params, state))))
 
@@ -225,14 +253,16 @@ def find_nonfinite(scene, state):
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
              progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False,
-             mesh=None, overwrite=False):
+             mesh=None, overwrite=False, allow_short=False):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
     first), as a State whose arrays have a leading axis of length n_out + 1.
     dt: a fixed time step (s), checked against the CFL limit; default: the CFL step each step.
     n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
-      host cannot plan (use `plan_steps` outside). progress: tqdm bar (host driver only).
+      host cannot plan (use `plan_steps` outside). Outside them, a run whose n_steps do not reach
+      t_end (by more than half a step) raises a RuntimeError naming the time reached, unless
+      allow_short (then check final.t). progress: tqdm bar (host driver only).
     checkpoint: how reverse mode through the fixed-length driver bounds its memory.
       False: no checkpointing; every step's intermediates are stored (MiB per step: short runs only).
       "steps": each step recomputed once in reverse from its stored input state: memory grows as
@@ -241,7 +271,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         of the steps per output, for one more forward pass (about 5-6 forward runs).
       "auto": "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else "nested".
       (Costs measured on the coarse debris cloud, benchmarks/grad_cost.py.)
-      chunk: steps per jitted chunk (host driver).
+    chunk: steps per jitted chunk (host driver).
     restart_file: path of a restart file to save every `restart_every` chunks and at each output
       (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically. An
       existing file there is refused (FileExistsError: resume it, or delete it) unless overwrite=True.
@@ -253,19 +283,24 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
       are in the scene's particle order. Not with restart_file or debug.
     """
     t_end = scene.t_end if t_end is None else float(t_end)
-    n_out = scene.n_out if n_out is None else int(n_out)
-    if n_out < 1:
-        raise ValueError(f"n_out = {n_out} is invalid: allowed an integer >= 1")
+    n_out = scene.n_out if n_out is None else count("n_out", n_out)
+    n_steps = None if n_steps is None else count("n_steps", n_steps)
+    chunk = None if chunk is None else count("chunk", chunk)
     checkpoint = checkpoint_mode(checkpoint, state, n_steps)
     traced = _traced((params, state))
     if not traced:
         check_params(scene, params)
         check_state(scene, state)
-        if not t_end > float(state.t):
-            raise ValueError(f"t_end = {t_end!r} is invalid: allowed > state.t = {float(state.t)} s")
+        t_end = check_t_end(t_end, state.t)
         if dt is not None:
             check_dt(scene, params, state, float(dt))
+    if (traced or n_steps is not None) and debug:
+        raise ValueError("debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
+                         "nothing): allowed debug=False there, or no n_steps outside them")
     if restart_file is not None:
+        if traced or n_steps is not None:
+            raise ValueError("restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "
+                             "saves nothing): allowed restart_file=None there, or no n_steps outside them")
         from jaxmpm.io import check_new
         check_new(restart_file, overwrite=overwrite)
     shards = 1
@@ -275,11 +310,24 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
             raise ValueError("mesh is invalid with restart_file or debug: allowed mesh=None for those runs")
         shards = distributed.mesh_size(mesh)
         state = distributed.to_shards(scene, state, mesh)
+    t0 = None if traced else float(state.t)
     final, history = _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk,
                           restart_file, restart_every, debug, traced, mesh)
+    if n_steps is not None and not traced and not allow_short:
+        _check_reached(scene, final.t, t0, t_end, n_steps)
     if mesh is None:
         return final, history
     return distributed.from_shards(scene, final, shards), distributed.from_shards(scene, history, shards, time_axis=True)
+
+
+def _check_reached(scene, t, t0, t_end, n_steps):
+    """RuntimeError when a fixed-length run ends short of t_end by more than half of a step of
+    (t_end - t0) / n_steps: its n_steps were too few (or its CFL step shrank during the run)."""
+    reached = float(np.max(np.asarray(t)))
+    if reached < t_end - 0.5 * (t_end - t0) / n_steps:
+        raise RuntimeError(f"{scene.name}: the run reached only t = {reached:.6g} s of t_end = {t_end:g} s in "
+                           f"n_steps = {n_steps}: pass a larger n_steps (jaxmpm.plan_steps(scene, params, state, t_end) "
+                           "plans them), or allow_short=True and check final.t")
 
 
 def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk, restart_file, restart_every,
@@ -361,7 +409,7 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                     raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
                                              f"(dt = 0: a wave speed is non-finite or infinite)")
                 if bar is not None:
-                    bar.update(float(state.t) - t0 - bar.n)
+                    bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
                 if restart_every and n_chunks % restart_every == 0:
                     save(i_out)
             history.append(state)

@@ -100,7 +100,9 @@ def check_sampling(scene) -> None:
 def init_state(scene, params) -> State:
     """Initial State: particles sampled from each phase's geometry, at the rest pressure and internal
     energy of its model (zero but for gases and p0 of an EOS), with the phase's initial velocity;
-    mass = rho0 * volume (rho0 from params). dtype follows params."""
+    mass = rho0 * volume (rho0 from params). dtype follows params. For a built-in scene,
+    `jaxmpm.initial_state` adds the initial fields its builder defines and a scene file cannot
+    express (the vibrating bar's mode shape); `jaxmpm run` and `ensemble` start from that."""
     from jaxmpm.materials.models import model_of
     from jaxmpm.params import check_params
 
@@ -139,7 +141,7 @@ def stencil_offsets(dim: int, width: int) -> np.ndarray:
 def check_state(scene, state: State) -> None:
     """Raise ValueError naming the field, the particle (index and phase) and the allowed range if a
     concrete State does not fit the scene: array shapes, finite values, mass and volume > 0,
-    damage in [0, 1], plastic strain >= 0, particles inside the grid."""
+    damage in [0, 1], plastic strain >= 0, det F > 0, particles inside the grid."""
     if not isinstance(state, State):
         raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State")
     slices = phase_slices(scene)
@@ -176,6 +178,11 @@ def check_state(scene, state: State) -> None:
             rng = f"{'>' if strict else '>='} {lo:g}" + (f" and <= {hi:g}" if hi is not None else "")
             raise ValueError(f"state.{name} = {float(a[i])!r} of particle {i} (phase {phase_of(i)!r}) is invalid: "
                              f"allowed {rng}{' ' + unit if unit else ''}")
+    det = np.linalg.det(np.asarray(state.F, np.float64))
+    if not (det > 0).all():
+        i = int(np.argmax(~(det > 0)))
+        raise ValueError(f"state.F of particle {i} (phase {phase_of(i)!r}) has det F = {float(det[i]):.6g}: allowed "
+                         "det F > 0 (a deformation gradient keeps volume positive)")
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h

@@ -55,6 +55,16 @@ def simulate_with(**kw):
     jaxmpm.simulate(s, p, jaxmpm.init_state(s, p), progress=False, **kw)
 
 
+def ensemble_with(state=None, member=None, **kw):
+    """An ensemble of two members of scene() (the second changed by `member`) from the initial state
+    changed by `state`."""
+    s = scene()
+    p = jaxmpm.default_params(s)
+    st = jaxmpm.init_state(s, p)
+    batch = jaxmpm.batch.stack([p, p if member is None else member(p)])
+    jaxmpm.ensemble(s, batch, state=st if state is None else state(st), n_out=1, **{"t_end": 1e-3, **kw})
+
+
 FILE = SCENE_TOML          # a valid scene file (tests/test_validation.py)
 
 CASES = [
@@ -72,6 +82,13 @@ CASES = [
      r"phase\.b\.geometry = .* is invalid: allowed inside the grid: axis x in \[0\.0, 1\.0\] m"),
     ("phase with no particle", lambda: scene(phases=(Phase("b", "m", Sphere((0.5, 0.5), 1e-4), ppc=1),)),
      r"phase\.b\.geometry = .* holds no particle"),
+    ("cell size given as a string", lambda: Grid(cells=(10, 10), h="5"), r"grid\.h = '5' is invalid: allowed a number"),
+    ("cell size given as a list", lambda: Grid(cells=(10, 10), h=[0.1]), r"grid\.h = \[0\.1\] is invalid: allowed a number"),
+    ("velocity given as a string of digits", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), velocity="12"),
+     r"phase\.b\.velocity = '12' is invalid: allowed a list of numbers"),
+    ("coordinates given as strings", lambda: Box(("0", "0"), (0.5, 0.5)), r"geometry\.lo = .* is invalid: allowed a list of numbers"),
+    ("phases given as names", lambda: scene(phases=("block",)), r"phases = \('block',\) is invalid: allowed a tuple of Phase"),
+    ("materials given as keys", lambda: scene(materials=("m",)), r"materials = \('m',\) is invalid: allowed a tuple of Material"),
     # --- phases and fields
     ("phase name not an identifier", lambda: Phase("a b", "m", Box((0.2, 0.2), (0.6, 0.6))), r"phase\.name = 'a b' is invalid"),
     ("two phases with one name", lambda: scene(phases=(Phase("b", "m", Box((0.2, 0.2), (0.4, 0.4))), Phase("b", "m", Box((0.5, 0.5), (0.7, 0.7))))),
@@ -106,6 +123,7 @@ CASES = [
     ("unknown transfer", lambda: scene(transfer="flip"), r"transfer = 'flip' is invalid: allowed musl \| seed"),
     ("APIC without B-splines", lambda: scene(transfer="apic"), r"transfer = 'apic' is invalid: allowed 'apic' only with shape = 'bspline2'"),
     ("B-splines with two fields", lambda: two_fields(shape="bspline2"), r"shape = 'bspline2' is invalid: allowed 'ddmp' or 'linear'"),
+    ("gravity given as a string", lambda: scene(gravity="09"), r"effects\.gravity = '09' is invalid: allowed a list of numbers"),
     ("gravity with the wrong length", lambda: scene(gravity=(0.0, -9.8, 0.0)), r"effects\.gravity = .* allowed a list of 2 numbers"),
     ("negative gravity ramp", lambda: scene(gravity=(0.0, -9.8), gravity_ramp=-1.0), r"effects\.gravity_ramp = -1\.0 is invalid: allowed >= 0 s"),
     ("negative damping", lambda: scene(damping=-1.0), r"effects\.damping = -1\.0 is invalid: allowed >= 0 1/s"),
@@ -118,6 +136,11 @@ CASES = [
      r"effects\.artificial_viscosity .* only with equation-of-state models: phase 'block' uses 'hypoelastic'"),
     ("unknown boundary face", lambda: Boundary(faces=(("z_top", "slip"),)), r"boundary\.z_top = 'slip' is invalid: allowed face names"),
     ("unknown boundary kind", lambda: Boundary(faces=(("x_lo", "sticky"),)), r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| fixed"),
+    ("wall on an axis the grid does not have", lambda: scene(boundary=Boundary(faces=(("z_lo", "fixed"),))),
+     r"boundary\.z_lo = 'fixed' is invalid: allowed faces of the 2D grid's axes"),
+    ("wall layers filling an axis", lambda: scene(grid=Grid(cells=(10, 6), h=0.1), phases=(Phase("b", "m", Box((0.2, 0.2), (0.6, 0.4))),),
+                                                  boundary=Boundary(faces=(("y_lo", "fixed"), ("y_hi", "slip")), layers=4)),
+     r"boundary\.layers = 4 is invalid: allowed at most 3 on axis y"),
     ("CFL above 1", lambda: scene(cfl=1.5), r"cfl = 1\.5 is invalid: allowed \(0, 1\]"),
     ("negative end time", lambda: scene(t_end=-1.0), r"t_end = -1\.0 is invalid: allowed > 0 s"),
     ("zero outputs", lambda: scene(n_out=0), r"output\.n_out = 0 is invalid: allowed an integer >= 1"),
@@ -133,18 +156,42 @@ CASES = [
     ("Params negative ramp", lambda: run_with_params(gravity_ramp=jnp.asarray(-1.0)), r"params\.gravity_ramp = -1\.0 is invalid: allowed >= 0 s"),
     ("Params negative drag", lambda: run_with_params(drag_coefficient=jnp.asarray(-1.0)), r"params\.drag_coefficient = -1\.0 is invalid: allowed >= 0"),
     ("Params non-finite C_h", lambda: run_with_params(c_h=jnp.asarray(float("nan"))), r"params\.c_h = nan is invalid: allowed > 0"),
+    ("Params constant of the wrong shape", lambda: run_with_params(cfl=jnp.full(3, 0.3)), r"params\.cfl has shape \(3,\): allowed a number"),
+    ("Params constant not a number", lambda: jaxmpm.default_params(scene()).with_constant("block", "E", "hard"),
+     r"params\.phases\['block'\]\['E'\] = 'hard' is invalid: allowed a number"),
+    ("Params closure constant without the closure", lambda: run_with_params(c_h=jnp.asarray(0.5)),
+     r"params\.c_h \(the scene has no closure \(effects\.c_h\)\): set it in the scene"),
     ("Params body force of the wrong length", lambda: run_with_params(body_force={"block": jnp.zeros(3)}), r"params\.body_force\['block'\] = .* allowed 2 finite numbers"),
+    ("Params non-finite damping", lambda: (lambda s: jaxmpm.init_state(s, dataclasses.replace(jaxmpm.default_params(s), damping=jnp.asarray(float("nan")))))(scene(damping=1.0)),
+     r"params\.damping = nan is invalid: allowed finite values >= 0 1/s"),
     # --- State
     ("negative particle volume", lambda: run_with_state(volume=lambda s: s.volume.at[5].set(-1.0)),
      r"state\.volume = -1\.0 of particle 5 \(phase 'block'\) is invalid: allowed > 0 m\^3"),
     ("non-finite velocity", lambda: run_with_state(v=lambda s: s.v.at[7, 1].set(jnp.nan)), r"state\.v of particle 7 \(phase 'block'\) is not finite"),
     ("damage above 1", lambda: run_with_state(damage=lambda s: s.damage.at[2].set(1.5)), r"state\.damage = 1\.5 of particle 2 .* allowed >= 0 and <= 1"),
     ("particle moved outside the grid", lambda: run_with_state(x=lambda s: s.x.at[0, 0].set(2.0)), r"state\.x of particle 0 .* lies outside the grid"),
+    ("singular deformation gradient", lambda: run_with_state(F=lambda s: s.F.at[3].set(0.0)),
+     r"state\.F of particle 3 \(phase 'block'\) has det F = 0: allowed det F > 0"),
     ("State of another scene", lambda: run_with_state(x=lambda s: s.x[:-1]), r"state\.x has shape .* the scene needs"),
     # --- running
     ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(cfl = 0\.3, h = 0\.1 m\)"),
-    ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed > state\.t = 0\.0 s"),
+    ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed a finite time > state\.t = 0\.0 s"),
     ("zero outputs to simulate", lambda: simulate_with(n_out=0), r"n_out = 0 is invalid: allowed an integer >= 1"),
+    ("infinite end time", lambda: simulate_with(t_end=float("inf")), r"t_end = inf is invalid: allowed a finite time > state\.t = 0\.0 s"),
+    ("zero steps", lambda: simulate_with(n_steps=0), r"n_steps = 0 is invalid: allowed an integer >= 1"),
+    ("a fraction of an output", lambda: simulate_with(n_out=2.7), r"n_out = 2\.7 is invalid: allowed an integer >= 1"),
+    ("zero steps per chunk", lambda: simulate_with(chunk=0), r"chunk = 0 is invalid: allowed an integer >= 1"),
+    ("restart file of a fixed-length run", lambda: simulate_with(restart_file="never_written.restart.h5", n_steps=4),
+     r"restart_file is invalid with n_steps or inside jit/grad/vmap"),
+    ("debug checks of a fixed-length run", lambda: simulate_with(n_steps=4, debug=True),
+     r"debug=True is invalid with n_steps or inside jit/grad/vmap"),
+    ("zero time step to plan", lambda: (lambda s, p: jaxmpm.plan_steps(s, p, jaxmpm.init_state(s, p), 1e-3, dt=0.0))(scene(), jaxmpm.default_params(scene())),
+     r"dt = 0\.0 is invalid: allowed a finite time step > 0 s"),
+    ("ensemble from a state outside the grid", lambda: ensemble_with(state=lambda st: dataclasses.replace(st, x=st.x.at[0, 0].set(5.0))),
+     r"state\.x of particle 0 \(phase 'block'\) = .* lies outside the grid"),
+    ("ensemble member out of range", lambda: ensemble_with(member=lambda p: p.with_constant("block", "E", -2e6)),
+     r"member 1: params\.phases\['block'\]\['E'\] = -2000000\.0 is invalid"),
+    ("ensemble ending before the start", lambda: ensemble_with(t_end=-1.0), r"t_end = -1\.0 is invalid: allowed a finite time > state\.t"),
     ("unknown checkpointing", lambda: simulate_with(n_steps=4, checkpoint="everything"),
      r"checkpoint = 'everything' is invalid: allowed False, True \(= 'nested'\), 'steps', 'nested' or 'auto'"),
     ("restart every 0 chunks", lambda: simulate_with(restart_file="x.h5", restart_every=0), r"restart_every = 0 is invalid: allowed an integer >= 1"),
@@ -167,6 +214,21 @@ CASES = [
 def test_bad_input_gets_a_clear_error(kind, action, pattern):
     with pytest.raises(ValueError, match=pattern):
         action()
+
+
+def test_a_fixed_length_run_that_falls_short_of_t_end_says_so():
+    """simulate(n_steps=...) with too few steps for t_end: a RuntimeError naming the time reached
+    (0.00327 of 0.02 s here), unless allow_short (then final.t says it)."""
+    s = scene()
+    p = jaxmpm.default_params(s)
+    st = jaxmpm.init_state(s, p)
+    n = jaxmpm.plan_steps(s, p, st, 2e-2)
+    with pytest.raises(RuntimeError, match=r"reached only t = .* of t_end = 0\.02 s in n_steps = 3: pass a larger n_steps"):
+        jaxmpm.simulate(s, p, st, t_end=2e-2, n_out=2, n_steps=3, progress=False)
+    final, _ = jaxmpm.simulate(s, p, st, t_end=2e-2, n_out=2, n_steps=3, progress=False, allow_short=True)
+    assert float(final.t) < 0.5 * 2e-2
+    final, _ = jaxmpm.simulate(s, p, st, t_end=2e-2, n_out=2, n_steps=n, progress=False)
+    assert float(final.t) == pytest.approx(2e-2, rel=1e-9)
 
 
 def test_the_table_has_at_least_40_kinds_and_the_docs_list_them_all():

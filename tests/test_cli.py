@@ -69,6 +69,12 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     (["--set", "no_equals_sign"], ["--set", "key=value"]),
     (["--opt", "res=0.5"], ["res", "resolution"]),
     (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
+    (["--opt", "resolution=abc"], ["--opt resolution='abc'", "allowed a number"]),
+    (["--opt", "shape=3"], ["--opt shape=3", "allowed a name"]),
+    (["--t-end", "inf"], ["--t-end inf is invalid: allowed a finite time > 0 s"]),
+    (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
+    (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
+    (["vibrating_bar", "--resume", "somewhere"], ["a scene is invalid with --resume"]),
 ])
 def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
     assert cli.main(["run", "--out", str(tmp_path), "--no-progress", *argv]) == 2
@@ -77,6 +83,15 @@ def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
     for w in words:
         assert w in err
     assert not tmp_path.exists() or os.listdir(tmp_path) == []
+
+
+def test_run_refuses_an_out_that_is_a_file_before_simulating(tmp_path, capsys):
+    ofile = tmp_path / "ofile"
+    ofile.write_text("keep")
+    assert cli.main(["run", "--out", str(ofile), "--no-progress", *TINY]) == 2
+    err = capsys.readouterr()
+    assert f"--out {ofile} is a file: allowed a folder" in err.err and "particles" not in err.out   # nothing ran
+    assert ofile.read_text() == "keep"
 
 
 def test_run_scene_file(tmp_path, capsys):

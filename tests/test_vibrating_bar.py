@@ -60,3 +60,18 @@ def test_seed_halfstep_position_term_is_first_order_in_time():
     e_seed = run_bar(50, "ddmp", 1e-3, 0.02, 2.5)[0]
     assert 1.7 < e_a / e_b < 2.3
     assert e_seed < e_a / 5
+
+
+def test_a_scene_of_ones_own_named_like_the_bar_keeps_its_initial_velocity():
+    """The bar's mode shape (a built-in's initial fields) is applied to the built-in's bodies only:
+    a 2D block of one's own named 'vibrating_bar' starts at its own uniform 1 m/s."""
+    from jaxmpm import Box, Grid, Material, Phase, Scene
+
+    own = Scene(name="vibrating_bar", grid=Grid(cells=(10, 10), h=0.1),
+                materials=(Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3),),
+                phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6)), velocity=(1.0, 0.0)),))
+    v = np.asarray(initial_state(own, jaxmpm.default_params(own)).v)
+    np.testing.assert_array_equal(v, np.broadcast_to([1.0, 0.0], v.shape))
+    bar = vibrating_bar(cells=20, v0=0.5)
+    state = initial_state(bar, jaxmpm.default_params(bar))     # the built-in at other options: the mode shape
+    np.testing.assert_allclose(np.asarray(state.v[:, 0]), 0.5 * np.sin(BETA * np.asarray(state.x[:, 0])), rtol=1e-12)

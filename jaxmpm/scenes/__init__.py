@@ -39,9 +39,17 @@ DEFAULT_SCENE = "elastic_impact"
 
 def initial_state(scene, params):
     """`jaxmpm.init_state`, then the built-in scene's own initial fields (e.g. the vibrating bar's
-    mode shape) when `scene.name` is a built-in that defines them."""
+    mode shape) when the scene is that built-in: named like it and with its bodies (each phase's
+    name, material and geometry as its builder makes them, whatever its options). A scene of
+    one's own that carries a built-in's name keeps the initial state its file describes."""
     from jaxmpm.state import init_state
 
     state = init_state(scene, params)
     b = BUILTINS.get(scene.name)
-    return b.prepare(scene, params, state) if b is not None and b.prepare is not None else state
+    if b is None or b.prepare is None or _bodies(scene) != _bodies(b.build()):
+        return state
+    return b.prepare(scene, params, state)
+
+
+def _bodies(scene):
+    return [(p.name, p.material, p.geometry) for p in scene.phases]

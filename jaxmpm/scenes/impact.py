@@ -22,7 +22,7 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     (9.53 mm) centred on the axis one radius plus `gap` (default one cell) above the plate, plate
     `plate_thickness` (2.21 mm, t/D = 0.232) thick of radius `plate_radius` with its top face at
     z = 0; the sphere flies at `speed` (6710 m/s) along -z. At least 4 cells across the plate
-    (resolution >= 0.73). The grid spans r in [0, plate_radius + 3 mm] and
+    (resolution >= 0.724). The grid spans r in [0, plate_radius + 3 mm] and
     z from 6.7 km/s * t_end + 10 mm below the plate to one sphere diameter above it, with cells of
     0.4 mm / resolution (12 cells across the sphere's radius at resolution 1).
     Phases: projectile and plate, both `al2024` from the library (Mie-Grueneisen EOS, Johnson-Cook
