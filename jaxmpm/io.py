@@ -17,8 +17,10 @@ HDF5 layout written by `write` (SI units; every dataset carries a `units` attrib
 The XDMF file beside it (same stem, .xdmf) is a temporal collection of spatial collections, one
 Polyvertex grid per phase, whose data items point into the HDF5 file by relative name: open the
 .xdmf in ParaView (Xdmf3 reader). Files are never overwritten unless asked (`overwrite=True`,
-the command line's `--overwrite`), and are written to a temporary name then renamed, so an
-interrupted write never leaves a half file under the final name.
+the command line's `--overwrite`), a directory never, and are written to a temporary name then
+renamed (the .h5 before the .xdmf), so an interrupted write never leaves a half file under the
+final name. `read` and `summary` check the layout: a file that is not one `write` wrote gets a
+ValueError naming it and what is missing.
 """
 from __future__ import annotations
 
@@ -83,7 +85,12 @@ def check_space(folder, needed: int) -> None:
 
 
 def check_new(*paths, overwrite: bool = False) -> None:
-    """Raise FileExistsError naming the first of `paths` that exists, unless overwrite."""
+    """Raise FileExistsError naming the first of `paths` that exists, unless overwrite; and, even
+    with overwrite, the first that is a directory (a file never replaces a directory)."""
+    for p in paths:
+        if os.path.isdir(p):
+            raise FileExistsError(f"{os.fspath(p)} is a directory: refusing to replace it with a file "
+                                  "(allowed a file name; move or remove the directory)")
     if overwrite:
         return
     for p in paths:
@@ -92,11 +99,22 @@ def check_new(*paths, overwrite: bool = False) -> None:
                                   "(pass overwrite=True, or --overwrite on the command line)")
 
 
+def _make_parent(path: Path) -> None:
+    """Create path's folder (and the folders above it); FileExistsError naming the path and the
+    component in the way where a component of the folder is a file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        block = next((q for q in reversed(path.parents) if os.path.lexists(q) and not q.is_dir()), path.parent)
+        raise FileExistsError(f"cannot write {os.fspath(path)}: {os.fspath(block)} is a file, not a folder "
+                              "(allowed a path whose folders are folders or do not exist yet)") from None
+
+
 @contextlib.contextmanager
 def _atomic(path: Path):
     """Yield a fresh temporary name in path's directory; rename it to `path` on success, delete it
     on error (the final name never holds a partial file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(path)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         yield os.fspath(tmp)
@@ -118,9 +136,43 @@ def _h5_path(path) -> Path:
     return path
 
 
+def _check_scene(scene) -> None:
+    from jaxmpm.scene import Scene
+
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene = {type(scene).__name__} is invalid: allowed a jaxmpm.Scene")
+
+
+def field_shapes(scene) -> dict:
+    """{field: shape} of one State of `scene` (no time axis): x, v (n, d); mass, volume, energy,
+    eps_ps, pressure, damage (n,); F, stress (n, md, md) with md = scene.material_dim; C (n, d, d)."""
+    n, d, md = phase_slices(scene)[-1].stop, scene.dim, scene.material_dim
+    return {"x": (n, d), "v": (n, d), "volume": (n,), "mass": (n,), "F": (n, md, md), "stress": (n, md, md),
+            "energy": (n,), "C": (n, d, d), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
+
+
+def _check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
+    """ValueError naming the first field of `fields` ({name: array}) whose shape is not the scene's
+    (with the leading axes `lead`, e.g. (n_times,)), or that is not a floating-point array."""
+    n = phase_slices(scene)[-1].stop
+    for name, shape in field_shapes(scene).items():
+        if name not in fields:
+            continue
+        a = fields[name]
+        need = lead + shape
+        if tuple(a.shape) != need:
+            raise ValueError(f"{what}.{name} has shape {tuple(a.shape)}: the scene {scene.name!r} has {n} particles "
+                             f"in {scene.dim}D and needs {need}")
+        if a.dtype.kind != "f":
+            raise ValueError(f"{what}.{name} has dtype {a.dtype}: allowed floating-point numbers")
+
+
 # ----------------------------------------------------------------------------------- write
 def _host_history(history: State) -> dict:
     """{field: numpy array with a leading time axis} of a history (or of one State)."""
+    if not isinstance(history, State):
+        raise ValueError(f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State (one State, or a "
+                         "history with a leading time axis as from jaxmpm.simulate)")
     x = np.asarray(history.x)
     if x.ndim == 2:
         history = jax.tree.map(lambda a: np.asarray(a)[None], history)
@@ -156,20 +208,31 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
     to the HDF5 file `path` (.h5) and an XDMF index beside it. Returns (h5 path, xdmf path).
 
     params: optional Params, stored under /params. Raises FileExistsError if either file exists
-    and not `overwrite`; ValueError if the history does not fit the scene.
+    and not `overwrite`, if either is a directory, or if a folder of `path` is a file; ValueError
+    if the history is not a State or any of its fields does not fit the scene.
     """
     import jaxmpm
 
     h5 = _h5_path(path)
     xdmf = xdmf_path(h5)
-    check_new(h5, xdmf, overwrite=overwrite)
+    check_new(h5, xdmf, overwrite=overwrite)          # and neither is a directory, even with overwrite
+    _check_scene(scene)
     data = _host_history(history)
     slices = phase_slices(scene)
     n, d = data["x"].shape[1], data["x"].shape[2]
     if n != slices[-1].stop or d != scene.dim:
         raise ValueError(f"history has {n} particles in {d}D: the scene {scene.name!r} has "
                          f"{slices[-1].stop} particles in {scene.dim}D")
-    with _atomic(h5) as tmp_h5, _atomic(xdmf) as tmp_xdmf:  # both renamed only once both are written
+    n_times = data["x"].shape[0]
+    if data["t"].shape != (n_times,) or data["t"].dtype.kind != "f":
+        raise ValueError(f"history.t has shape {np.shape(history.t)} and dtype {data['t'].dtype}: the history has "
+                         f"{n_times} output times (history.x has shape {data['x'].shape}) and needs ({n_times},) "
+                         "floating-point times (s)")
+    _check_shapes(scene, data, "history", (n_times,))
+    _make_parent(h5)
+    # both renamed only once both are written, the .h5 first: should that rename fail, no new
+    # .xdmf points into a file that is not there
+    with _atomic(xdmf) as tmp_xdmf, _atomic(h5) as tmp_h5:
         with h5py.File(tmp_h5, "w") as f:
             f.attrs.update({"jaxmpm_version": jaxmpm.__version__, "dtype": str(data["x"].dtype), "dim": d,
                             "n_out": len(data["t"]) - 1, "n_times": len(data["t"]), "scene_name": scene.name,
@@ -238,14 +301,38 @@ def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
 
 
 # ----------------------------------------------------------------------------------- read
-def _open(path):
+def open_h5(path, what: str = "jaxmpm output file (written by jaxmpm.io.write)"):
+    """Open the HDF5 file `path` for reading: FileNotFoundError if it does not exist, ValueError
+    naming the path if it is a directory or not a readable HDF5 file (text, truncated, ...)."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path) or (path.is_symlink() and not path.exists()):
         raise FileNotFoundError(f"{os.fspath(path)} does not exist")
-    f = h5py.File(path, "r")
-    if "scene" not in f:
+    if path.is_dir():
+        raise ValueError(f"{os.fspath(path)} is a directory: allowed a {what}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as e:
+        raise ValueError(f"{os.fspath(path)} is not a readable HDF5 file ({e}): allowed a {what}") from None
+
+
+def _is_restart(f) -> bool:
+    return "state" in f and "history" in f and "t0" in f.attrs
+
+
+def _open(path):
+    f = open_h5(path)
+    try:
+        if _is_restart(f):
+            raise ValueError(f"{os.fspath(path)} is a jaxmpm restart file, not an output file: continue its run with "
+                             "jaxmpm.restart.resume (jaxmpm run --resume FOLDER)")
+        if "scene" not in f or not isinstance(f["scene"], h5py.Dataset) or f["scene"].dtype.kind not in "OSU":
+            raise ValueError(f"{os.fspath(path)} is not a jaxmpm output file: it has no /scene dataset (TOML text)")
+        if not _times(f):
+            raise ValueError(f"{os.fspath(path)} holds no output time group /t0000: it is not a complete jaxmpm "
+                             "output file")
+    except BaseException:
         f.close()
-        raise ValueError(f"{os.fspath(path)} is not a jaxmpm output file: it has no /scene dataset")
+        raise
     return f
 
 
@@ -253,28 +340,71 @@ def _times(f) -> list[str]:
     return sorted((k for k in f if k.startswith("t") and k[1:].isdigit()), key=lambda k: int(k[1:]))
 
 
+def _node(f, path, ref: str, kind=h5py.Dataset):
+    """f[ref], a dataset (or group: kind=h5py.Group); ValueError naming the file if it is missing."""
+    node = f.get(ref)
+    if not isinstance(node, kind):
+        noun = "group" if kind is h5py.Group else "dataset"
+        raise ValueError(f"{os.fspath(path)} has no {noun} {ref}: it is not a complete jaxmpm output file")
+    return node
+
+
+def _time(f, path, g: str):
+    """The attribute `time` (s) of the output group /g, as stored; ValueError naming the file if
+    it is missing or not a number."""
+    g = _node(f, path, f"/{g}", h5py.Group)
+    if "time" not in g.attrs:
+        raise ValueError(f"{os.fspath(path)} has no attribute 'time' on {g.name}: it is not a complete jaxmpm output file")
+    t = g.attrs["time"]
+    if np.ndim(t) != 0 or np.asarray(t).dtype.kind not in "fiu":
+        raise ValueError(f"{os.fspath(path)}: {g.name} attribute time = {t!r} is invalid: allowed a number (s)")
+    return t
+
+
+def _scene_text(f, path) -> str:
+    try:
+        return f["scene"].asstr()[()]
+    except (TypeError, ValueError, OSError) as e:
+        raise ValueError(f"{os.fspath(path)}:/scene is not TOML text ({e})") from None
+
+
 def read(path):
     """Read a file written by `write`: returns (scene, history), history a State of numpy arrays
-    with a leading time axis (t (n_times,) s; x (n_times, N, d) m; ...), phases in scene order."""
-    from jaxmpm.scenefile import scene_from_toml
+    with a leading time axis (t (n_times,) s; x (n_times, N, d) m; ...), phases in scene order.
+    FileNotFoundError if `path` does not exist; ValueError naming the file and what is missing
+    or wrong if it is not a complete output file (or does not fit its own /scene)."""
+    from jaxmpm.scenefile import parse_toml, scene_from_dict
 
+    where = os.fspath(path)
     with _open(path) as f:
-        scene = scene_from_toml(f["scene"].asstr()[()], f"{os.fspath(path)}:/scene")
+        try:
+            scene = scene_from_dict(parse_toml(_scene_text(f, path), f"{where}:/scene"))
+        except ValueError as e:
+            raise ValueError(e if str(e).startswith(where) else f"{where}:/scene: {e}") from None
         slices = phase_slices(scene)
+        shapes = field_shapes(scene)
         groups = _times(f)
-        t = np.array([f[g].attrs["time"] for g in groups])
+        t = np.array([_time(f, path, g) for g in groups])
+        for g in groups:
+            for p in scene.phases:
+                _node(f, path, f"/{g}/{p.name}", h5py.Group)
+        first = f[groups[0]][scene.phases[0].name]
         fields = {}
         for name in FIELDS + OPTIONAL:
-            if name not in f[groups[0]][scene.phases[0].name]:
+            if name not in FIELDS and name not in first:
                 continue
             per_time = []
             for g in groups:
-                parts = [f[g][p.name][name][()] for p in scene.phases]
+                parts = []
+                for p, sl in zip(scene.phases, slices):
+                    ds = _node(f, path, f"/{g}/{p.name}/{name}")
+                    need = (sl.stop - sl.start,) + shapes[name][1:]
+                    if ds.shape != need or ds.dtype.kind != "f":
+                        raise ValueError(f"{where}:/{g}/{p.name}/{name} has shape {ds.shape} ({ds.dtype}): its scene "
+                                         f"needs {need} floating-point numbers")
+                    parts.append(ds[()])
                 per_time.append(np.concatenate(parts))
             fields[name] = np.stack(per_time)
-    n = fields["x"].shape[1]
-    if n != slices[-1].stop:
-        raise ValueError(f"{os.fspath(path)} holds {n} particles: its scene samples {slices[-1].stop}")
     names = {fl.name for fl in dataclasses.fields(State)}
     history = State(t=t, **{k: v for k, v in fields.items() if k in names})
     return scene, history
@@ -285,14 +415,29 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     """PNG of one State (no time axis), particles coloured by phase: 2D a scatter of x, 1D velocity
     and stress against position, 3D the projection on the x-y plane; in 2D and 3D a second panel
     coloured by damage where any particle is damaged (the crack pattern). Returns the path.
-    Raises FileExistsError if `path` exists and not `overwrite`."""
+    Raises FileExistsError if `path` exists and not `overwrite` (or is a directory); ValueError if
+    `path` does not end in .png or the state does not fit the scene."""
     from matplotlib.figure import Figure
 
     path = Path(path)
-    check_new(path, overwrite=overwrite)
+    if path.suffix != ".png":
+        raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in .png")
+    check_new(path, overwrite=overwrite)              # and it is not a directory, even with overwrite
+    _check_scene(scene)
+    if not isinstance(state, State):
+        raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State (one State, e.g. "
+                         "jax.tree.map(lambda a: a[-1], history))")
     x = np.asarray(state.x)
     if x.ndim != 2:
         raise ValueError(f"state.x has shape {x.shape}: plot one State, e.g. jax.tree.map(lambda a: a[-1], history)")
+    n = phase_slices(scene)[-1].stop
+    if x.shape != (n, scene.dim):
+        raise ValueError(f"state has {x.shape[0]} particles in {x.shape[1]}D: the scene {scene.name!r} has "
+                         f"{n} particles in {scene.dim}D")
+    _check_shapes(scene, {k: np.asarray(getattr(state, k)) for k in ("x", "v", "stress", "damage")
+                          if getattr(state, k) is not None}, "state")
+    if np.shape(state.t) != ():
+        raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
     v, stress, d = np.asarray(state.v), np.asarray(state.stress), scene.dim
     lo, hi = np.asarray(scene.grid.origin), np.asarray(scene.grid.hi)
     colors = [f"C{i % 10}" for i in range(len(scene.phases))]
@@ -343,23 +488,35 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
 
 def summary(path) -> str:
     """Text summary of a file written by `write`: scene, output times, phases with particle counts,
-    total mass and kinetic energy at the first and last output."""
+    total mass and kinetic energy at the first and last output. Errors as `read`."""
     from jaxmpm.scenefile import parse_toml
 
+    where = os.fspath(path)
     with _open(path) as f:
         a = f.attrs
-        spec = parse_toml(f["scene"].asstr()[()])
+        spec = parse_toml(_scene_text(f, path), f"{where}:/scene")
         groups = _times(f)
-        if not groups:
-            raise ValueError(f"{os.fspath(path)} holds no output time group /t0000")
-        dim = int(a.get("dim", len(spec["grid"]["cells"])))
-        times = [float(f[g].attrs["time"]) for g in groups]
-        phases = a["phases"].split(",") if "phases" in a else list(f[groups[0]])
-        rows = []
+        try:
+            dim = int(a["dim"]) if "dim" in a else len(spec["grid"]["cells"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{where} has no dimension: neither an attribute 'dim' nor grid.cells in /scene") from None
+        times = [float(_time(f, path, g)) for g in groups]
+        phases = str(a["phases"]).split(",") if "phases" in a else list(_node(f, path, f"/{groups[0]}", h5py.Group))
+        for g in groups:
+            for p in phases:
+                _node(f, path, f"/{g}/{p}", h5py.Group)
         for g in (groups[0], groups[-1]):
-            m = sum(float(np.sum(f[g][p]["mass"][()])) for p in phases)
-            ke = sum(float(0.5 * np.sum(f[g][p]["mass"][()] * np.sum(f[g][p]["v"][()] ** 2, -1))) for p in phases)
-            rows.append((m, ke))
+            for p in phases:
+                for name in ("x", "v", "mass"):
+                    _node(f, path, f"/{g}/{p}/{name}")
+        rows = []
+        try:
+            for g in (groups[0], groups[-1]):
+                m = sum(float(np.sum(f[g][p]["mass"][()])) for p in phases)
+                ke = sum(float(0.5 * np.sum(f[g][p]["mass"][()] * np.sum(f[g][p]["v"][()] ** 2, -1))) for p in phases)
+                rows.append((m, ke))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{where}: the masses or velocities of /{g} are not numbers of matching shapes ({e})") from None
         lines = [f"file:    {os.fspath(path)} (jaxmpm {a.get('jaxmpm_version', '?')}, {a.get('dtype', '?')}, {dim}D)",
                  f"scene:   {spec.get('name', '?')}" + (f": {spec['description']}" if spec.get("description") else ""),
                  f"outputs: {len(times)} times from {times[0]:.6g} s to {times[-1]:.6g} s",

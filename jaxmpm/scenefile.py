@@ -290,8 +290,13 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
             raise ValueError(f"options {sorted(options)} apply to built-in scenes only; edit the file {path!r} instead")
         if not os.path.isfile(path):
             raise ValueError(f"scene file {path!r} does not exist")
-        with open(path, encoding="utf-8") as f:
-            d = parse_toml(f.read(), path)
+        try:
+            with open(path, encoding="utf-8") as f:
+                text = f.read()
+        except UnicodeDecodeError as e:
+            raise ValueError(f"scene file {path!r} is not a TOML scene file: it is not UTF-8 text "
+                             f"(byte {e.start}: {e.reason})") from None
+        d = parse_toml(text, path)
     elif path in BUILTINS:
         scene = BUILTINS[path].build(**options)
         if not overrides:

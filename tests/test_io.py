@@ -234,3 +234,153 @@ def test_3d_apic_round_trip(tmp_path):
     with h5py.File(h5, "r") as f:
         assert "x3" not in f["t0000/fluid"] and f["t0000/fluid/C"].attrs["units"] == "1/s"
     assert io.plot_state(scene, state, tmp_path / "c.png").is_file()
+
+
+# ----------------------------------------------------------------------------------- bad files and bad input
+def _restart_file(scene, params, history, path):
+    from jaxmpm import restart
+
+    state = jax.tree.map(lambda a: a[0], history)
+    restart.save(path, scene, params, state, [state], t0=0.0, t_end=0.05, n_out=2, next_out=0, chunk=5, dt=None)
+    return path
+
+
+def test_read_names_a_file_that_is_not_an_output_file(run, tmp_path):
+    """A text file, a truncated file, a directory or a restart file: a ValueError naming the path
+    and what it is, never an h5py OSError without the path or an IndexError."""
+    scene, params, _, history = run
+    text = tmp_path / "notes.h5"
+    text.write_text("not HDF5\n")
+    h5, _ = io.write(tmp_path / "good.h5", scene, history)
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(h5.read_bytes()[:2000])
+    rst = _restart_file(scene, params, history, tmp_path / "run.restart.h5")
+    folder = tmp_path / "folder.h5"
+    folder.mkdir()
+    for bad, what in ((text, "is not a readable HDF5 file"), (cut, "is not a readable HDF5 file"),
+                      (rst, "is a jaxmpm restart file, not an output file"), (folder, "is a directory")):
+        for fn in (io.read, io.summary):
+            with pytest.raises(ValueError, match=what) as e:
+                fn(bad)
+            assert str(bad) in str(e.value), (fn, bad)
+    with h5py.File(tmp_path / "empty.h5", "w") as f:
+        f.create_dataset("scene", data=jaxmpm.scene_to_toml(scene))
+    for fn in (io.read, io.summary):
+        with pytest.raises(ValueError, match="empty.h5 holds no output time group /t0000"):
+            fn(tmp_path / "empty.h5")
+
+
+def test_read_names_a_missing_group_or_dataset(run, tmp_path):
+    scene, _, _, history = run
+    h5, _ = io.write(tmp_path / "o.h5", scene, history)
+    with h5py.File(h5, "r+") as f:
+        del f["t0001/disk_b"]
+    for fn in (io.read, io.summary):
+        with pytest.raises(ValueError, match="o.h5 has no group /t0001/disk_b"):
+            fn(h5)
+    h5, _ = io.write(tmp_path / "f.h5", scene, history)
+    with h5py.File(h5, "r+") as f:
+        del f["t0002/disk_a/F"]
+    with pytest.raises(ValueError, match="f.h5 has no dataset /t0002/disk_a/F"):
+        io.read(h5)
+    h5, _ = io.write(tmp_path / "s.h5", scene, history)
+    with h5py.File(h5, "r+") as f:
+        del f["t0001/disk_a/v"]
+        f["t0001/disk_a/v"] = np.zeros((3, 2))
+    with pytest.raises(ValueError, match=r"s.h5:/t0001/disk_a/v has shape \(3, 2\)"):
+        io.read(h5)
+    with h5py.File(h5, "r+") as f:
+        del f["t0002"].attrs["time"]
+    for fn in (io.read, io.summary):
+        with pytest.raises(ValueError, match="s.h5 has no attribute 'time' on /t0002"):
+            fn(h5)
+
+
+def test_write_checks_every_field_against_the_scene(run, tmp_path):
+    """Not only x: a field with the wrong particle count is refused, and nothing is written."""
+    scene, _, _, history = run
+    short_F = dataclasses.replace(history, F=history.F[:, :10])
+    with pytest.raises(ValueError, match=r"history.F has shape \(3, 10, 2, 2\): the scene 'elastic_impact' has \d+ "
+                                         r"particles in 2D and needs \(3, \d+, 2, 2\)"):
+        io.write(tmp_path / "f.h5", scene, short_F)
+    with pytest.raises(ValueError, match=r"history.damage has shape"):
+        io.write(tmp_path / "f.h5", scene, dataclasses.replace(history, damage=history.damage[0]))
+    with pytest.raises(ValueError, match=r"history.t has shape \(2,\)"):
+        io.write(tmp_path / "f.h5", scene, dataclasses.replace(history, t=history.t[:2]))
+    with pytest.raises(ValueError, match="history = NoneType is invalid: allowed a jaxmpm.State"):
+        io.write(tmp_path / "f.h5", scene, None)
+    with pytest.raises(ValueError, match="scene = str is invalid: allowed a jaxmpm.Scene"):
+        io.write(tmp_path / "f.h5", "elastic_impact", history)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_overwrite_never_replaces_a_directory(run, tmp_path):
+    """overwrite=True with a directory where the .h5 (or .xdmf) goes: refused before anything is
+    renamed, so no .xdmf appears that points at an .h5 that is not there."""
+    scene, _, _, history = run
+    (tmp_path / "d.h5").mkdir()
+    for overwrite in (False, True):
+        with pytest.raises(FileExistsError, match="d.h5 is a directory: refusing to replace it"):
+            io.write(tmp_path / "d.h5", scene, history, overwrite=overwrite)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.h5"]
+    (tmp_path / "e.xdmf").mkdir()
+    with pytest.raises(FileExistsError, match="e.xdmf is a directory"):
+        io.write(tmp_path / "e.h5", scene, history, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.h5", "e.xdmf"]
+    (tmp_path / "p.png").mkdir()
+    with pytest.raises(FileExistsError, match="p.png is a directory"):
+        io.plot_state(scene, jax.tree.map(lambda a: a[-1], history), tmp_path / "p.png", overwrite=True)
+
+
+def test_the_h5_is_renamed_before_the_xdmf(run, tmp_path, monkeypatch):
+    """Should replacing the .h5 fail, the .xdmf beside it is the old one, intact."""
+    scene, _, _, history = run
+    h5, xdmf = io.write(tmp_path / "o.h5", scene, history)
+    before = (h5.read_bytes(), xdmf.read_bytes())
+    real = os.replace
+
+    def failing(src, dst):
+        if os.fspath(dst).endswith(".h5"):
+            raise OSError("disk full (simulated)")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", failing)
+    with pytest.raises(OSError, match="disk full"):
+        io.write(h5, scene, jax.tree.map(lambda a: a[:1], history), overwrite=True)
+    assert (h5.read_bytes(), xdmf.read_bytes()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.h5", "o.xdmf"]
+
+
+def test_a_file_in_place_of_a_folder_is_named(run, tmp_path):
+    scene, _, final, history = run
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(FileExistsError, match=r"cannot write .*afile/sub/o.h5: .*afile is a file, not a folder"):
+        io.write(tmp_path / "afile" / "sub" / "o.h5", scene, history)
+    with pytest.raises(FileExistsError, match=r"cannot write .*afile/p.png: .*afile is a file, not a folder"):
+        io.plot_state(scene, final, tmp_path / "afile" / "p.png")
+    assert (tmp_path / "afile").read_text() == "x"
+
+
+def test_plot_state_checks_the_state_and_the_suffix(run, bar, tmp_path):
+    scene, _, final, _ = run
+    scene1, _, hist1 = bar
+    with pytest.raises(ValueError, match=r"state has \d+ particles in 2D: the scene 'vibrating_bar' has \d+ particles in 1D"):
+        io.plot_state(scene1, final, tmp_path / "a.png")
+    with pytest.raises(ValueError, match=r"state.v has shape"):
+        io.plot_state(scene, dataclasses.replace(final, v=final.v[:5]), tmp_path / "a.png")
+    with pytest.raises(ValueError, match=r"path = '.*a.jpg' is invalid: allowed a file name ending in .png"):
+        io.plot_state(scene, final, tmp_path / "a.jpg")
+    with pytest.raises(ValueError, match="state = NoneType is invalid"):
+        io.plot_state(scene, None, tmp_path / "a.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_load_scene_names_a_file_that_is_not_text(run, tmp_path):
+    scene, _, _, history = run
+    h5, _ = io.write(tmp_path / "o.h5", scene, history)
+    toml = tmp_path / "o.toml"
+    toml.write_bytes(h5.read_bytes())
+    with pytest.raises(ValueError, match=r"scene file '.*o.toml' is not a TOML scene file: it is not UTF-8 text"):
+        jaxmpm.load_scene(toml)
+    with pytest.raises(ValueError, match=r"scene file '.*o.h5' is not a TOML scene file"):
+        jaxmpm.load_scene(str(h5))
