@@ -100,10 +100,9 @@ def cmd_run(args) -> int:
     _check_run_args(args)
     if args.resume:
         path = _resume_file(args.resume)
-        import h5py
-        with h5py.File(path, "r") as f:
-            if f["params/0000"].dtype == "float64":
-                args.x64 = True
+        from jaxmpm.restart import dtype     # names the file if it is not a complete restart file
+        if dtype(path) == "float64":
+            args.x64 = True
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     import jaxmpm
