@@ -190,7 +190,10 @@ def cmd_show(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from jaxmpm.scenes import DEFAULT_SCENE
 
+    from jaxmpm import __version__
+
     parser = argparse.ArgumentParser(prog="jaxmpm", description="Differentiable multiphase MPM in JAX.")
+    parser.add_argument("--version", action="version", version=f"jaxmpm {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser("run", help="run a scene and write HDF5 + XDMF + PNG",

@@ -220,7 +220,9 @@ def _toml_value(v) -> str:
 
 
 def scene_to_toml(scene: Scene) -> str:
-    """TOML text of the scene; `load_scene` of this text gives back an equal Scene."""
+    """TOML text of the scene; `load_scene` of this text gives back an equal Scene (a Phase that
+    holds a Material object comes back naming it by key, with the Material among the scene's
+    materials: an equivalent Scene, not an equal one)."""
     d = scene_to_dict(scene)
     lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric",
                                                      "window") if k in d]

@@ -207,7 +207,9 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
 
 def taylor_measures(scene, state):
     """(final length, footprint diameter) in m of a taylor_bar State: the largest z of the rod, and
-    twice the largest r among particles within one cell of the wall."""
+    twice the largest r among particles within one cell of the wall. These are particle-centre
+    extents; the material's surface lies half a particle spacing h / (2 ppc) beyond each free face,
+    and the figures quoted for the scene (`taylor_bar`) add it: L + h / (2 ppc), D + h / ppc."""
     import numpy as np
     x = np.asarray(state.x)
     near = x[:, 1] < scene.grid.h
