@@ -32,6 +32,14 @@ def stack(items):
     """One pytree with a leading axis from a list of equal-structure pytrees (Params or States)."""
     if not items:
         raise ValueError("stack: the list is empty: allowed one or more Params")
+    first = jax.tree.structure(items[0])
+    for i, item in enumerate(items[1:], 1):
+        if jax.tree.structure(item) != first:
+            raise ValueError(f"stack: item {i} has another structure than item 0 (e.g. Params of another scene: other "
+                             "phases or constants): allowed items of one scene")
+        shapes = [np.shape(a) for a in jax.tree.leaves(item)]
+        if shapes != [np.shape(a) for a in jax.tree.leaves(items[0])]:
+            raise ValueError(f"stack: item {i} has leaves of other shapes than item 0: allowed items of one scene")
     return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *items)
 
 
@@ -57,7 +65,10 @@ def sweep(params: Params, **values) -> Params:
     for k, v in values.items():
         if k not in names:
             raise ValueError(f"sweep: {k!r} is not a Params field: allowed {sorted(names)}")
-        v = np.asarray(v, dtype=float)
+        try:
+            v = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"sweep: {k} = {v!r} is invalid: allowed a list of numbers") from None
         if v.ndim != 1 or v.size == 0:
             raise ValueError(f"sweep: {k} has shape {v.shape}: allowed a 1D list of values")
         if n is not None and v.size != n:
