@@ -17,12 +17,19 @@ SEED_CH = (0.02, 0.15, 0.5, 1.0)
 
 
 def _new_folder(out) -> Path:
-    """The output folder, created; refuses one that holds a previous result."""
+    """The output folder, created; refuses one that holds a previous result, and a path through a file."""
     out = Path(out)
+    blocker = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+    if blocker is not None:
+        raise ValueError(f"--out {out} is invalid: {blocker} exists and is not a folder (allowed a new folder "
+                         "or an empty one)")
     if out.exists() and any(out.iterdir()):
         raise FileExistsError(f"--out {out}: the folder exists and is not empty: a previous result is never "
                               "overwritten (choose a new folder or remove it yourself)")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--out {out}: the folder cannot be created ({e.strerror or e})") from None
     return out
 
 
@@ -31,9 +38,69 @@ def _pair(text, flag):
         a, b = (float(x) for x in text.split(","))
     except ValueError:
         raise ValueError(f"{flag} {text!r} is invalid: allowed two numbers 'C_d,C_h', e.g. 2.0,0.3") from None
-    if not (a > 0 and b > 0):
-        raise ValueError(f"{flag} {text!r} is invalid: allowed C_d > 0 and C_h > 0")
+    if not (0 < a < np.inf and 0 < b < np.inf):
+        raise ValueError(f"{flag} {text!r} is invalid: allowed C_d > 0 and C_h > 0 (finite)")
     return a, b
+
+
+def _values(text, flag):
+    """The comma-separated C_h values of --c-h, each finite and > 0."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{flag} {text!r} is invalid: allowed comma-separated numbers, e.g. 0.02,0.15,0.5") from None
+    if not all(0 < v < np.inf for v in values):
+        raise ValueError(f"{flag} {text!r} is invalid: allowed C_h values > 0 (finite)")
+    return values
+
+
+def _positive(value, flag, what=""):
+    """value if it is finite and > 0."""
+    if not 0 < value < np.inf:
+        raise ValueError(f"{flag} {value} is invalid: allowed a finite number > 0{what}")
+    return value
+
+
+def _iterations(n):
+    if not (isinstance(n, int) and n >= 1):
+        raise ValueError(f"--iterations {n} is invalid: allowed an integer >= 1")
+    return n
+
+
+def _bounds(lo_hi, flag):
+    """(LO, HI) of a landscape axis: 0 < LO < HI, finite."""
+    lo, hi = lo_hi
+    if not 0 < lo < hi < np.inf:
+        raise ValueError(f"{flag} {lo} {hi} is invalid: allowed LO HI with 0 < LO < HI (finite)")
+    return lo, hi
+
+
+def _check_scene(args, fields):
+    """Refuse a bad --fields, --t-end or --resolution before any work; the debris_cloud scene, built
+    here without arrays (milliseconds), checks what remains: the resolution's lower bound."""
+    if args.fields not in fields:
+        raise ValueError(f"--fields {args.fields} is invalid: allowed {' | '.join(map(str, fields))}"
+                         + ("" if 1 in fields else " (C_d, the drag between the two velocity fields, has no "
+                            "effect with one field)"))
+    _positive(args.t_end, "--t-end", " (s)")
+    _positive(args.resolution, "--resolution")
+    import jaxmpm
+    try:
+        jaxmpm.load_scene("debris_cloud", resolution=args.resolution, fields=args.fields, t_end=args.t_end,
+                          fragmentation=args.fragmentation)
+    except ValueError as e:
+        raise ValueError(f"--resolution {args.resolution} is invalid: {e}") from None
+
+
+def _measurements(path):
+    """data.load(path); a missing, unreadable or bad table a usage error naming --data (data.load's
+    messages start with the path)."""
+    try:
+        return data.load(path)
+    except (ValueError, FileNotFoundError) as e:
+        raise ValueError(f"--data {e}" if path is not None else str(e)) from None
+    except OSError as e:
+        raise ValueError(f"--data {path}: the file cannot be read ({e.strerror or e})") from None
 
 
 def _versions():
@@ -56,10 +123,10 @@ def _setup(args):
 
 def cmd_table(args) -> int:
     from calibration import plots
-    meas = data.load(args.data)
-    values = [float(x) for x in args.c_h.split(",")]
-    if not all(v > 0 for v in values):
-        raise ValueError(f"--c-h {args.c_h!r} is invalid: allowed C_h values > 0")
+    values = _values(args.c_h, "--c-h")
+    _positive(args.drag, "--drag", " (C_d)")
+    _check_scene(args, fields=(1, 2))
+    meas = _measurements(args.data)
     out = _new_folder(args.out)
     model = _setup(args)
     print(f"debris_cloud: resolution {args.resolution}, {args.fields} field(s), {model.state.x.shape[0]} particles, "
@@ -106,10 +173,15 @@ def cmd_fit(args) -> int:
     from calibration import fit as F
     from calibration import plots
     from calibration.model import theta_of
-    meas = data.load(args.data)
     start = _pair(args.start, "--start")
-    if not (isinstance(args.iterations, int) and args.iterations >= 1):
-        raise ValueError(f"--iterations {args.iterations} is invalid: allowed an integer >= 1")
+    _iterations(args.iterations)
+    _positive(args.learning_rate, "--learning-rate", " (Adam's step in log space)")
+    if not (args.landscape == 0 or args.landscape >= 2):
+        raise ValueError(f"--landscape {args.landscape} is invalid: allowed 0 (none) or an integer >= 2")
+    _bounds(args.landscape_cd, "--landscape-cd")
+    _bounds(args.landscape_ch, "--landscape-ch")
+    _check_scene(args, fields=(2,))
+    meas = _measurements(args.data)
     out = _new_folder(args.out)
     model = _setup(args)
     print(f"debris_cloud: resolution {args.resolution}, {args.fields} fields, {model.state.x.shape[0]} particles, "
@@ -165,6 +237,7 @@ def cmd_synthetic(args) -> int:
     from calibration.model import theta_of
     from calibration.synthetic import DebrisInWaterModel
     truth, start = _pair(args.truth, "--truth"), _pair(args.start, "--start")
+    _iterations(args.iterations)
     model = DebrisInWaterModel.build()
     print(f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
           f"truth C_d = {truth[0]:g}, C_h = {truth[1]:g}; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
@@ -184,7 +257,8 @@ def build_parser():
         p = sub.add_parser(name)
         p.set_defaults(fn=fn)
         p.add_argument("--resolution", type=float, default=0.75, help="debris_cloud resolution (>= 0.73; default 0.75)")
-        p.add_argument("--fields", type=int, default=2 if name == "fit" else 1, help="velocity fields (1 or 2)")
+        p.add_argument("--fields", type=int, default=2 if name == "fit" else 1,
+                       help="velocity fields (2 for fit: C_d acts between them; 1 or 2 for table)")
         p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
         p.add_argument("--data", default=None, help="the experiment's CSV (default: the packaged copy)")
         p.add_argument("--out", default=default_out, help="output folder (must not hold a previous result)")
@@ -195,14 +269,14 @@ def build_parser():
                        "the two-field cloud overflow past ~2 us)")
     t = sub.choices["table"]
     t.add_argument("--c-h", default=",".join(map(str, SEED_CH)), help="C_h values (default: the seed's)")
-    t.add_argument("--drag", type=float, default=1.0, help="C_d (used with --fields 2)")
+    t.add_argument("--drag", type=float, default=1.0, help="C_d > 0 (used with --fields 2)")
     f = sub.choices["fit"]
     f.add_argument("--iterations", type=int, default=30)
     f.add_argument("--start", default="1.0,0.15", help="starting C_d,C_h")
     f.add_argument("--method", choices=("adam", "lbfgs"), default="adam",
                    help="optimiser: adam (robust from a poor start) or lbfgs (line search; few iterations near the optimum)")
-    f.add_argument("--learning-rate", type=float, default=0.15, help="Adam step in log space")
-    f.add_argument("--landscape", type=int, default=4, help="N: an N x N landscape grid (0: none)")
+    f.add_argument("--learning-rate", type=float, default=0.15, help="Adam step in log space (> 0)")
+    f.add_argument("--landscape", type=int, default=4, help="N >= 2: an N x N landscape grid (0: none)")
     f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"))
     f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"))
     f.add_argument("--no-progress", action="store_true")

@@ -46,8 +46,14 @@ def _number(text, row, column, path):
 def load(path=None) -> Measurements:
     """Read and check the table (default: the packaged copy). Raises ValueError naming the row
     (1-based, header excluded) and column of any missing column, non-numeric or out-of-range
-    value, unknown or repeated point id, or missing point."""
+    value, unknown or repeated point id, or missing point; FileNotFoundError naming a missing file."""
     path = DEFAULT_CSV if path is None else Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file (allowed the path of a CSV table with columns point, "
+                                "experiment_km_s, ch_<C_h>)")
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file (allowed the path of a CSV table with columns point, "
+                         "experiment_km_s, ch_<C_h>)")
     with open(path, newline="") as f:
         lines = [line for line in f if line.strip() and not line.lstrip().startswith("#")]
     reader = csv.DictReader(lines)

@@ -89,20 +89,77 @@ def _lbfgs_step(loss):
     return opt.init, step
 
 
+def _real(value):
+    """value as a float; nan where it is not a real number (a string, an array of several)."""
+    if isinstance(value, (str, bytes)):
+        return np.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return np.nan
+
+
+def _float_array(value):
+    """value as a float array; None where it is not numeric."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+
+
+def _require(ok, name, value, allowed):
+    if not ok:
+        raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
+
+
+def check_options(iterations, learning_rate, decay, tol, rtol, patience, method):
+    """Refuse out-of-range scalar options of `fit` (ValueError naming the option and its range)."""
+    integer = lambda x: isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+    _require(integer(iterations) and iterations >= 1, "iterations", iterations, "an integer >= 1")
+    _require(method in METHODS, "method", method, " | ".join(METHODS))
+    lr, d, t, rt = _real(learning_rate), _real(decay), _real(tol), _real(rtol)
+    _require(np.isfinite(lr) and lr > 0, "learning_rate", learning_rate,
+             "a finite number > 0 (Adam's step in log space)")
+    _require(0 < d <= 1, "decay", decay, "a number in (0, 1] (the learning rate's factor per iteration; 1: constant)")
+    _require(np.isfinite(t) and t >= 0, "tol", tol, "a finite number >= 0 (km/s)^2")
+    _require(np.isfinite(rt) and rt >= 0, "rtol", rtol, "a finite number >= 0")
+    _require(integer(patience) and patience >= 1, "patience", patience, "an integer >= 1")
+
+
+def check_arrays(velocities, target, theta0, weights):
+    """(target, theta0, weights) as float arrays, checked: theta0 finite (2,); target finite, of the
+    shape of velocities(theta0) (found by tracing, without running it); weights None or finite,
+    >= 0, not all 0, of target's shape. ValueError naming the argument otherwise."""
+    th = _float_array(theta0)
+    _require(th is not None and th.shape == (2,) and np.all(np.isfinite(th)), "theta0", theta0,
+             "finite numbers of shape (2,): (log C_d, log C_h)")
+    tg = _float_array(target)
+    _require(tg is not None and np.all(np.isfinite(tg)), "target", target, "finite numbers (km/s)")
+    shape = jax.eval_shape(velocities, jnp.asarray(th, jnp.zeros(()).dtype)).shape
+    if tg.shape != shape:
+        raise ValueError(f"target of shape {tg.shape} is invalid: allowed the shape of velocities(theta0), {shape}")
+    if weights is None:
+        return tg, th, None
+    w = _float_array(weights)
+    _require(w is not None and w.shape == tg.shape and np.all(np.isfinite(w) & (w >= 0)) and np.any(w > 0),
+             "weights", weights, f"None or finite numbers >= 0, not all 0, of target's shape {tg.shape}")
+    return tg, th, w
+
+
 def fit(velocities, target, theta0, iterations=30, learning_rate=0.15, decay=0.97, tol=1e-6, rtol=1e-4,
         patience=5, weights=None, progress=True, method="adam"):
     """Minimise the loss over theta from theta0 with `method` ('adam' or 'lbfgs').
-    velocities: theta (2,) -> (3,) km/s (or any observables), differentiable."""
-    if not (isinstance(iterations, int) and iterations >= 1):
-        raise ValueError(f"iterations = {iterations!r} is invalid: allowed an integer >= 1")
-    if method not in METHODS:
-        raise ValueError(f"method = {method!r} is invalid: allowed {' | '.join(METHODS)}")
+    velocities: theta (2,) -> (3,) km/s (or any observables), differentiable; target: of its shape.
+    learning_rate > 0 and decay in (0, 1] (Adam's rate at iteration k: learning_rate * decay^k);
+    weights: None (all 1) or >= 0 of target's shape. Bad arguments raise ValueError before any run."""
+    check_options(iterations, learning_rate, decay, tol, rtol, patience, method)
+    target, theta0, weights = check_arrays(velocities, target, theta0, weights)
     loss = loss_fn(velocities, target, weights)
     init, step = _adam_step(loss, learning_rate, decay) if method == "adam" else _lbfgs_step(loss)
     theta = jnp.asarray(theta0, jnp.zeros(()).dtype)
     # strong types throughout: a weakly typed leaf of the initial state would compile the step twice
     state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), init(theta))
-    result = FitResult(theta=np.asarray(theta), loss=np.inf, residuals=np.full(3, np.nan), method=method)
+    result = FitResult(theta=np.asarray(theta), loss=np.inf, residuals=np.full(target.shape, np.nan), method=method)
     bar = None
     if progress:
         from tqdm.auto import tqdm

@@ -228,14 +228,57 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     (["fit", "--start=-1,0.1"], r"--start '-1,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
     (["table", "--c-h", "0.1,-0.5"], r"--c-h '0.1,-0.5' is invalid: allowed C_h values > 0"),
     (["fit", "--iterations", "0"], r"--iterations 0 is invalid: allowed an integer >= 1"),
+    (["table", "--drag=-1", "--fields", "2", "--c-h", "0.1"], r"--drag -1.0 is invalid: allowed a finite number > 0"),
+    (["table", "--drag", "nan"], r"--drag nan is invalid: allowed a finite number > 0"),
+    (["fit", "--learning-rate=-1"], r"--learning-rate -1.0 is invalid: allowed a finite number > 0"),
+    (["fit", "--learning-rate", "0"], r"--learning-rate 0.0 is invalid: allowed a finite number > 0"),
+    (["fit", "--learning-rate", "nan"], r"--learning-rate nan is invalid: allowed a finite number > 0"),
+    (["fit", "--fields", "1"], r"--fields 1 is invalid: allowed 2 \(C_d, the drag between the two velocity fields"),
+    (["table", "--fields", "3"], r"--fields 3 is invalid: allowed 1 \| 2"),
+    (["table", "--c-h", "a,b"], r"--c-h 'a,b' is invalid: allowed comma-separated numbers"),
+    (["table", "--c-h", ""], r"--c-h '' is invalid: allowed comma-separated numbers"),
+    (["table", "--c-h", "0.1,inf"], r"--c-h '0.1,inf' is invalid: allowed C_h values > 0"),
+    (["fit", "--start", "inf,0.1"], r"--start 'inf,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
+    (["table", "--resolution", "0.5"], r"--resolution 0.5 is invalid: .* allowed >= 4 cells, i.e. resolution >= 0.724"),
+    (["table", "--resolution", "nan"], r"--resolution nan is invalid: allowed a finite number > 0"),
+    (["fit", "--t-end=-1"], r"--t-end -1.0 is invalid: allowed a finite number > 0 \(s\)"),
+    (["fit", "--landscape", "1"], r"--landscape 1 is invalid: allowed 0 \(none\) or an integer >= 2"),
+    (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
+    (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
+    (["table", "--data", "no/such/table.csv"], r"--data no/such/table.csv: no such file \(allowed the path of a CSV"),
 ])
 def test_calibration_command_refuses_bad_options(tmp_path, capsys, argv, match):
+    """Refused with status 2 and a message naming the option and its range, before any run and
+    before the --out folder is created."""
     import re
 
     from calibration.__main__ import main
 
     assert main(argv + ["--out", str(tmp_path / "new")]) == 2
     assert re.search(match, capsys.readouterr().err)
+    assert not (tmp_path / "new").exists()
+
+
+def test_calibration_command_refuses_an_out_path_through_a_file(tmp_path, capsys):
+    from calibration.__main__ import main
+
+    afile = tmp_path / "afile"
+    afile.write_text("kept")
+    for out in (afile, afile / "sub"):
+        assert main(["table", "--out", str(out)]) == 2
+        assert f"--out {out} is invalid: {afile} exists and is not a folder" in capsys.readouterr().err
+    assert afile.read_text() == "kept"
+
+
+def test_missing_or_non_file_table_is_refused_naming_it(tmp_path, capsys):
+    from calibration.__main__ import main
+
+    with pytest.raises(FileNotFoundError, match=f"{tmp_path / 'nope.csv'}: no such file"):
+        data.load(tmp_path / "nope.csv")
+    with pytest.raises(ValueError, match=f"{tmp_path} is not a file"):
+        data.load(tmp_path)
+    assert main(["fit", "--data", str(tmp_path), "--out", str(tmp_path / "new")]) == 2
+    assert f"error: --data {tmp_path} is not a file" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
 
 
@@ -300,3 +343,38 @@ def test_fit_refuses_an_unknown_method():
 
     with pytest.raises(ValueError, match=r"method = 'sgd' is invalid: allowed adam \| lbfgs"):
         fit(lambda th: th, np.zeros(2), np.zeros(2), method="sgd")
+
+
+@pytest.mark.parametrize("options, match", [
+    (dict(learning_rate=-1.0), r"learning_rate = -1.0 is invalid: allowed a finite number > 0"),
+    (dict(learning_rate=0.0), r"learning_rate = 0.0 is invalid: allowed a finite number > 0"),
+    (dict(learning_rate=np.nan), r"learning_rate = nan is invalid: allowed a finite number > 0"),
+    (dict(decay=0.0), r"decay = 0.0 is invalid: allowed a number in \(0, 1\]"),
+    (dict(decay=1.5), r"decay = 1.5 is invalid: allowed a number in \(0, 1\]"),
+    (dict(tol=-1.0), r"tol = -1.0 is invalid: allowed a finite number >= 0"),
+    (dict(rtol=np.nan), r"rtol = nan is invalid: allowed a finite number >= 0"),
+    (dict(patience=0), r"patience = 0 is invalid: allowed an integer >= 1"),
+    (dict(theta0=np.zeros(3)), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
+    (dict(theta0=[np.nan, 0.0]), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
+    (dict(target=np.zeros(4)), r"target of shape \(4,\) is invalid: allowed the shape of velocities\(theta0\), \(3,\)"),
+    (dict(target=[6.3, np.inf, 3.9]), r"target = .* is invalid: allowed finite numbers"),
+    (dict(weights=[-1.0, 1.0, 1.0]), r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0, "
+     r"of target's shape \(3,\)"),
+    (dict(weights=[0.0, 0.0, 0.0]), r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0"),
+    (dict(weights=[1.0, 1.0]), r"weights = .* is invalid: .* of target's shape \(3,\)"),
+])
+def test_fit_refuses_bad_arguments_before_any_run(options, match):
+    """ValueError naming the argument and its range; the model is never called (only traced for its
+    output's shape)."""
+    from calibration.fit import fit
+
+    calls = []
+
+    def velocities(theta):
+        calls.append(isinstance(theta, jax.core.Tracer))
+        return jnp.stack([theta[0], theta[1], theta[0] + theta[1]])
+
+    args = dict(target=np.array([6.3, 6.1, 3.9]), theta0=np.zeros(2)) | options
+    with pytest.raises(ValueError, match=match):
+        fit(velocities, progress=False, **args)
+    assert all(calls)
