@@ -1,4 +1,6 @@
-"""python -m calibration {table,fit} ... (see calibration/__init__.py)."""
+"""python -m calibration {table,fit,synthetic} ...: the debris cloud's feature velocities against C_h (table),
+the fit of (C_d, C_h) to the experiment (fit), the recovery of known (C_d, C_h) (synthetic); see
+calibration/__init__.py."""
 from __future__ import annotations
 
 import argparse
@@ -251,12 +253,15 @@ def cmd_synthetic(args) -> int:
 
 
 def build_parser():
-    ap = argparse.ArgumentParser(prog="python -m calibration", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m calibration", description=__doc__,
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
     for name, fn, default_out in (("table", cmd_table, "calibration_table"), ("fit", cmd_fit, "calibration_fit")):
-        p = sub.add_parser(name)
+        p = sub.add_parser(name, formatter_class=argparse.ArgumentDefaultsHelpFormatter, help={
+            "table": "the debris cloud's feature velocities for a list of C_h, against the experiment",
+            "fit": "fit (C_d, C_h) to the experiment's feature velocities by gradient descent"}[name])
         p.set_defaults(fn=fn)
-        p.add_argument("--resolution", type=float, default=0.75, help="debris_cloud resolution (>= 0.73; default 0.75)")
+        p.add_argument("--resolution", type=float, default=0.75, help="debris_cloud resolution (>= 0.724)")
         p.add_argument("--fields", type=int, default=2 if name == "fit" else 1,
                        help="velocity fields (2 for fit: C_d acts between them; 1 or 2 for table)")
         p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
@@ -271,7 +276,7 @@ def build_parser():
     t.add_argument("--c-h", default=",".join(map(str, SEED_CH)), help="C_h values (default: the seed's)")
     t.add_argument("--drag", type=float, default=1.0, help="C_d > 0 (used with --fields 2)")
     f = sub.choices["fit"]
-    f.add_argument("--iterations", type=int, default=30)
+    f.add_argument("--iterations", type=int, default=30, help="optimiser iterations")
     f.add_argument("--start", default="1.0,0.15", help="starting C_d,C_h")
     f.add_argument("--method", choices=("adam", "lbfgs"), default="adam",
                    help="optimiser: adam (robust from a poor start) or lbfgs (line search; few iterations near the optimum)")
@@ -280,11 +285,12 @@ def build_parser():
     f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"))
     f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"))
     f.add_argument("--no-progress", action="store_true")
-    y = sub.add_parser("synthetic", help="recover known (C_d, C_h) on a small two-phase scene (about a minute)")
+    y = sub.add_parser("synthetic", help="recover known (C_d, C_h) on a small two-phase scene (about a minute)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     y.set_defaults(fn=cmd_synthetic)
     y.add_argument("--truth", default="1.0,0.15", help="C_d,C_h that generate the observables")
     y.add_argument("--start", default="2.0,0.3", help="starting C_d,C_h")
-    y.add_argument("--iterations", type=int, default=20)
+    y.add_argument("--iterations", type=int, default=20, help="optimiser iterations")
     y.add_argument("--method", choices=("adam", "lbfgs"), default="lbfgs")
     y.add_argument("--no-progress", action="store_true")
     return ap
