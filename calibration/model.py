@@ -60,14 +60,14 @@ class CloudModel:
     def velocities(self, theta, checkpoint="auto"):
         """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
         _, hist = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
-                                  n_steps=self.n_steps, checkpoint=checkpoint)
+                                  n_steps=self.n_steps, checkpoint=checkpoint, allow_short=True)   # see `reached`
         return self.velocities_of_history(hist)
 
     def reached(self, theta):
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
         final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
-                                   n_steps=self.n_steps)
+                                   n_steps=self.n_steps, allow_short=True)
         return float(final.t)
 
     def velocities_batch(self, thetas, allow_short=False):

@@ -47,7 +47,8 @@ s0 = jaxmpm.init_state(scene, params)
 n = jaxmpm.plan_steps(scene, params, s0, 4e-7)
 def momentum_and_heat(c_d, mesh):
     p = dataclasses.replace(params, drag_coefficient=c_d)
-    fin, _ = jaxmpm.simulate(scene, p, s0, t_end=4e-7, n_out=1, n_steps=n, checkpoint=True, mesh=mesh)
+    # the impact's shock shortens the CFL step: the run ends at 3.8e-7 s, on one device as on two
+    fin, _ = jaxmpm.simulate(scene, p, s0, t_end=4e-7, n_out=1, n_steps=n, checkpoint=True, mesh=mesh, allow_short=True)
     return jnp.sum(fin.mass * fin.v[:, 1]) + jnp.sum(fin.mass * fin.energy), fin
 if GRADIENT:
     (v1, one), g1 = jax.value_and_grad(momentum_and_heat, has_aux=True)(jnp.asarray(1.0), None)

@@ -47,7 +47,8 @@ def test_vmap_over_youngs_modulus_equals_single_runs(small):
 
     def run(E):
         p = params.with_constant("disk_a", "E", E).with_constant("disk_b", "E", E)
-        return jaxmpm.simulate(scene, p, state, n_steps=n)[0]
+        # the stiffer members' CFL steps are shorter: they end before t_end in n steps, batched or not
+        return jaxmpm.simulate(scene, p, state, n_steps=n, allow_short=True)[0]
 
     batch = jax.jit(jax.vmap(run))(Es)
     for i, E in enumerate(Es):
