@@ -91,6 +91,8 @@ CASES = [
     ("materials given as keys", lambda: scene(materials=("m",)), r"materials = \('m',\) is invalid: allowed a tuple of Material"),
     # --- phases and fields
     ("phase name not an identifier", lambda: Phase("a b", "m", Box((0.2, 0.2), (0.6, 0.6))), r"phase\.name = 'a b' is invalid"),
+    ("two bodies in one place", lambda: scene(phases=(Phase("a", "m", Box((0.2, 0.2), (0.6, 0.6))), Phase("b", "m", Box((0.4, 0.4), (0.8, 0.8))))),
+     r"phase\.a\.geometry overlaps phase\.b\.geometry \(e\.g\. at .* m\), where their volume fractions sum to 2"),
     ("two phases with one name", lambda: scene(phases=(Phase("b", "m", Box((0.2, 0.2), (0.4, 0.4))), Phase("b", "m", Box((0.5, 0.5), (0.7, 0.7))))),
      r"phase\.name = 'b' is invalid: allowed unique names"),
     ("negative field index", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), field=-1), r"phase\.b\.field = -1 is invalid: allowed an integer >= 0"),
@@ -218,6 +220,17 @@ CASES = [
 def test_bad_input_gets_a_clear_error(kind, action, pattern):
     with pytest.raises(ValueError, match=pattern):
         action()
+
+
+def test_a_mixture_may_share_space_and_touching_bodies_may_touch():
+    """Bodies that share space with fractions summing to <= 1 (a mixture) and bodies that only touch
+    are accepted; their mass is the sum of their parts."""
+    half = lambda name, lo, hi: Phase(name, "m", Box(lo, hi), fraction=0.5)
+    mix = scene(phases=(half("a", (0.2, 0.2), (0.6, 0.6)), half("b", (0.2, 0.2), (0.6, 0.6))))
+    touch = scene(phases=(Phase("a", "m", Box((0.2, 0.2), (0.4, 0.6))), Phase("b", "m", Box((0.4, 0.2), (0.6, 0.6)))))
+    one = scene()
+    m = lambda s: float(jnp.sum(jaxmpm.init_state(s, jaxmpm.default_params(s)).mass))
+    assert m(mix) == pytest.approx(m(one), rel=1e-12) and m(touch) == pytest.approx(m(one), rel=1e-12)
 
 
 def test_a_fixed_length_run_that_falls_short_of_t_end_says_so():
