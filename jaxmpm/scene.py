@@ -233,6 +233,8 @@ class Scene:
         ramp = _float("effects.gravity_ramp", self.gravity_ramp)
         if ramp < 0:
             _fail("effects.gravity_ramp", ramp, ">= 0 s")
+        if ramp > 0 and self.gravity is None:
+            _fail("effects.gravity_ramp", ramp, "only with effects.gravity (it ramps gravity in)")
         object.__setattr__(self, "gravity_ramp", ramp)
         if self.damping is not None:
             c = _float("effects.damping", self.damping)
@@ -248,6 +250,8 @@ class Scene:
                 if val < 0 or (positive and val == 0):
                     _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
                 object.__setattr__(self, name, val)
+        if self.drag_length is not None and self.drag is None:
+            _fail("effects.drag_length", self.drag_length, "only with effects.drag (the length of its drag law, E3)")
         if self.c_h is not None:
             ch = _float("effects.c_h", self.c_h)
             if not ch > 0:

@@ -128,6 +128,8 @@ CASES = [
     ("gravity given as a string", lambda: scene(gravity="09"), r"effects\.gravity = '09' is invalid: allowed a list of numbers"),
     ("gravity with the wrong length", lambda: scene(gravity=(0.0, -9.8, 0.0)), r"effects\.gravity = .* allowed a list of 2 numbers"),
     ("negative gravity ramp", lambda: scene(gravity=(0.0, -9.8), gravity_ramp=-1.0), r"effects\.gravity_ramp = -1\.0 is invalid: allowed >= 0 s"),
+    ("gravity ramp without gravity", lambda: scene(gravity_ramp=1.0), r"effects\.gravity_ramp = 1\.0 is invalid: allowed only with effects\.gravity"),
+    ("drag length without drag", lambda: two_fields(drag_length=0.01), r"effects\.drag_length = 0\.01 is invalid: allowed only with effects\.drag"),
     ("negative damping", lambda: scene(damping=-1.0), r"effects\.damping = -1\.0 is invalid: allowed >= 0 1/s"),
     ("negative drag coefficient", lambda: two_fields(drag=-1.0), r"effects\.drag = -1\.0 is invalid: allowed >= 0"),
     ("zero drag length", lambda: two_fields(drag=1.0, drag_length=0.0), r"effects\.drag_length = 0\.0 is invalid: allowed > 0 m"),
