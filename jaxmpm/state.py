@@ -83,27 +83,26 @@ def particle_fields(scene) -> np.ndarray:
 
 def check_sampling(scene) -> None:
     """Raise ValueError if a phase has no particle, a particle lies where its stencil leaves the
-    grid, or bodies that share volume overlap with volume fractions that sum to more than 1 (two
-    coincident bodies of fraction 1 would double the mass there; a mixture's phases share a region
-    with fractions that sum to at most 1). Phases share volume when they are in one velocity field
-    or both in fields of the common pressure (scene.pressure_fields); a field outside it feels the
-    others by drag alone and may overlap them."""
+    grid, or bodies of one velocity field overlap with volume fractions that sum to more than 1
+    (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's
+    phases in one field share a region with fractions that sum to at most 1). Bodies of different
+    fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
     for p in scene.phases:
         x = sample_phase(scene.grid, p)
         total = np.full(len(x), float(p.fraction))
-        shared = set(scene.pressure_fields)
         for q in scene.phases:
-            if q is not p and (q.field == p.field or {p.field, q.field} <= shared):
+            if q is not p and q.field == p.field:
                 inside = q.geometry.contains(x)
                 total = total + q.fraction * inside
                 if (total > 1 + 1e-9).any():
                     i = int(np.argmax(total > 1 + 1e-9))
-                    raise ValueError(f"phase.{p.name}.geometry overlaps phase.{q.name}.geometry (e.g. at {x[i].tolist()} m), "
-                                     f"where their volume fractions sum to {total[i]:g}: allowed bodies that do not overlap, "
-                                     "or phases of a mixture whose fractions sum to <= 1 where they share space")
+                    raise ValueError(f"phase.{p.name}.geometry overlaps phase.{q.name}.geometry in velocity field {p.field} "
+                                     f"(e.g. at {x[i].tolist()} m), where their volume fractions sum to {total[i]:g}: allowed "
+                                     "bodies of one field that do not overlap, or phases of a mixture whose fractions sum to <= 1 "
+                                     "where they share space (bodies of different fields may interpenetrate)")
         if len(x) == 0:
             raise ValueError(f"phase.{p.name}.geometry = {p.geometry.to_dict()} holds no particle: make it larger than a cell or raise ppc")
         bad = np.any((x < lo) | (x > hi), axis=1)

@@ -92,7 +92,7 @@ CASES = [
     # --- phases and fields
     ("phase name not an identifier", lambda: Phase("a b", "m", Box((0.2, 0.2), (0.6, 0.6))), r"phase\.name = 'a b' is invalid"),
     ("two bodies in one place", lambda: scene(phases=(Phase("a", "m", Box((0.2, 0.2), (0.6, 0.6))), Phase("b", "m", Box((0.4, 0.4), (0.8, 0.8))))),
-     r"phase\.a\.geometry overlaps phase\.b\.geometry \(e\.g\. at .* m\), where their volume fractions sum to 2"),
+     r"phase\.a\.geometry overlaps phase\.b\.geometry in velocity field 0 \(e\.g\. at .* m\), where their volume fractions sum to 2"),
     ("two phases with one name", lambda: scene(phases=(Phase("b", "m", Box((0.2, 0.2), (0.4, 0.4))), Phase("b", "m", Box((0.5, 0.5), (0.7, 0.7))))),
      r"phase\.name = 'b' is invalid: allowed unique names"),
     ("negative field index", lambda: Phase("b", "m", Box((0.2, 0.2), (0.6, 0.6)), field=-1), r"phase\.b\.field = -1 is invalid: allowed an integer >= 0"),
