@@ -7,7 +7,7 @@ import numpy as np
 
 
 def _save(fig, path):
-    from jaxmpm.io import _atomic, check_new
+    from jaxmpm.files import _atomic, check_new
     path = Path(path)
     check_new(path)
     with _atomic(path) as tmp:

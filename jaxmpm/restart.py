@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.io import _atomic, open_h5
+from jaxmpm.files import _atomic
+from jaxmpm.io import open_h5
 from jaxmpm.params import check_params, default_params
 from jaxmpm.state import check_state, init_state
 

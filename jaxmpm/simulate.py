@@ -301,7 +301,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         if traced or n_steps is not None:
             raise ValueError("restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "
                              "saves nothing): allowed restart_file=None there, or no n_steps outside them")
-        from jaxmpm.io import check_new
+        from jaxmpm.files import check_new
         check_new(restart_file, overwrite=overwrite)
     shards = 1
     if mesh is not None:

@@ -1,0 +1,64 @@
+"""Files written safely: never over a user's file unless asked, never over a directory, through a
+temporary name renamed into place (an interrupted write leaves no partial file under the final
+name), and not onto a disk without room. Used by `jaxmpm.io`, `jaxmpm.restart` and the commands."""
+from __future__ import annotations
+
+import contextlib
+import os
+import uuid
+from pathlib import Path
+
+
+def check_space(folder, needed: int) -> None:
+    """OSError if the disk holding `folder` has less than `needed` bytes free, saying both."""
+    import shutil
+
+    folder = Path(folder)
+    probe = folder
+    while not probe.exists():
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < needed:
+        raise OSError(f"not enough disk space in {folder}: the outputs need about {needed / 1e6:.1f} MB, "
+                      f"{free / 1e6:.1f} MB are free (fewer outputs: --n-out, or another --out)")
+
+
+
+def check_new(*paths, overwrite: bool = False) -> None:
+    """Raise FileExistsError naming the first of `paths` that exists, unless overwrite; and, even
+    with overwrite, the first that is a directory (a file never replaces a directory)."""
+    for p in paths:
+        if os.path.isdir(p):
+            raise FileExistsError(f"{os.fspath(p)} is a directory: refusing to replace it with a file "
+                                  "(allowed a file name; move or remove the directory)")
+    if overwrite:
+        return
+    for p in paths:
+        if os.path.lexists(p):
+            raise FileExistsError(f"{os.fspath(p)} exists: refusing to overwrite it "
+                                  "(pass overwrite=True, or --overwrite on the command line)")
+
+
+def _make_parent(path: Path) -> None:
+    """Create path's folder (and the folders above it); FileExistsError naming the path and the
+    component in the way where a component of the folder is a file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        block = next((q for q in reversed(path.parents) if os.path.lexists(q) and not q.is_dir()), path.parent)
+        raise FileExistsError(f"cannot write {os.fspath(path)}: {os.fspath(block)} is a file, not a folder "
+                              "(allowed a path whose folders are folders or do not exist yet)") from None
+
+
+@contextlib.contextmanager
+def _atomic(path: Path):
+    """Yield a fresh temporary name in path's directory; rename it to `path` on success, delete it
+    on error (the final name never holds a partial file)."""
+    _make_parent(path)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        yield os.fspath(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
