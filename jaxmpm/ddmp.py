@@ -14,7 +14,7 @@ The per-cell contractions over corners are written as broadcast products and sum
 XLA's CPU backend turns these tiny batched contractions into dot calls that took most of a DDMP
 step (benchmarks/throughput.py); as sums they fuse into one loop over the cells. Their values are
 unrolled sums of slices (the fastest forward); their tangents, which reverse mode transposes, are
-reductions when traced for `jaxmpm.jit` (`_bilinear`, `compile.native_reductions`).
+reductions when traced for `jaxmpm.jit` (`compile.bilinear_contraction`).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.compile import native_reductions
+from jaxmpm.compile import bilinear_contraction
 from jaxmpm.fields import safe_div
 from jaxmpm.state import stencil_offsets
 
@@ -336,42 +336,20 @@ def build(grid, nodal_volume, cell_volume, axisymmetric=False, window=None):
     return DDMPGrid(V=V, A=A, theta=theta, window=win)
 
 
-def _bilinear(unrolled, reduced):
-    """A bilinear per-cell contraction f(x, A) with its value by `unrolled` (sums of slices: the
-    fastest forward) and its tangent by `reduced` (a reduction over a broadcast product) when traced
-    for `jaxmpm.jit`: reverse mode transposes the tangent, and a reduction transposes to a
-    broadcast where the unrolled form transposes to a padded copy of A per slice (gradients 1.7x
-    slower). Under a plain jax.jit, where YNNPACK would take the reductions, both are unrolled."""
-    @jax.custom_jvp
-    def f(x, A):
-        return unrolled(x, A)
-
-    @f.defjvp
-    def f_jvp(primals, tangents):
-        (x, A), (dx, dA) = primals, tangents
-        g = reduced if native_reductions() else unrolled
-        # the value through f itself: where this rule is applied inside a linearisation that the
-        # step evaluates (the continuity form's jax.vjp), an outer derivative then meets f again
-        # and takes this tangent, not the transpose of the unrolled sums (a padded copy per slice)
-        return f(x, A), g(dx, A) + g(x, dA)
-
-    return f
-
-
 # sum_{j,b} s_jab A_jib -> (..., i, a): the stress force (E11)
-_force_contraction = _bilinear(
+_force_contraction = bilinear_contraction(
     lambda s, A: sum(s[..., j, None, :, b] * A[..., j, :, None, b] for j in range(A.shape[-3]) for b in range(A.shape[-1])),
     lambda s, A: jnp.sum(s[..., :, None, :, :] * A[..., :, :, None, :], axis=(-4, -1)))
 # sum_i v_ia A_jib -> (..., j, a, b): the velocity gradient (E12)
-_gradient_contraction = _bilinear(
+_gradient_contraction = bilinear_contraction(
     lambda v, A: sum(v[..., None, i, :, None] * A[..., :, i, None, :] for i in range(A.shape[-2])),
     lambda v, A: jnp.sum(v[..., None, :, :, None] * A[..., :, :, None, :], axis=-3))
 # sum_j q_j A_jik -> (..., i, k): the stress force (E11) of an isotropic share q I
-_isotropic_contraction = _bilinear(
+_isotropic_contraction = bilinear_contraction(
     lambda q, A: sum(q[..., j, None, None] * A[..., j, :, :] for j in range(A.shape[-3])),
     lambda q, A: jnp.sum(q[..., :, None, None] * A, axis=-3))
 # sum_i p_i A_nik -> (..., n, k): the integral of theta S_n grad p
-_scalar_contraction = _bilinear(
+_scalar_contraction = bilinear_contraction(
     lambda p, A: sum(p[..., None, i, None] * A[..., :, i, :] for i in range(A.shape[-2])),
     lambda p, A: jnp.sum(p[..., None, :, None] * A, axis=-2))
 

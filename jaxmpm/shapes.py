@@ -33,6 +33,35 @@ def node_strides(nodes):
     return np.array([int(np.prod(nodes[k + 1:])) for k in range(len(nodes))], dtype=np.int32)
 
 
+@jax.custom_jvp
+def _product_over_axes(a):
+    """prod over the last axis (d <= 3): the value one reduction, in the forward step and in the
+    gradient's alike. jnp.prod's own derivative rule recomputes the value as products of transposed
+    slices, which XLA then fused into every consumer of the weights: in a gradient of the elastic
+    impact, the scatter's contributions took 0.4 ms per step where the forward step's took 0.05."""
+    return jnp.prod(a, -1)
+
+
+@_product_over_axes.defjvp
+def _product_over_axes_jvp(primals, tangents):
+    (a,), (da,) = primals, tangents
+    d = a.shape[-1]
+    tangent = da[..., 0] * _product_of(a, [j for j in range(d) if j != 0])
+    for k in range(1, d):
+        tangent = tangent + da[..., k] * _product_of(a, [j for j in range(d) if j != k])
+    return jnp.prod(a, -1), tangent
+
+
+def _product_of(a, axes):
+    """a[..., j] multiplied over the listed axes j (ones for none)."""
+    if not axes:
+        return jnp.ones_like(a[..., 0])
+    out = a[..., axes[0]]
+    for j in axes[1:]:
+        out = out * a[..., j]
+    return out
+
+
 def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     d, h = grid.dim, grid.h
     xi = (x - jnp.asarray(grid.origin, x.dtype)) / h
@@ -42,7 +71,7 @@ def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     off = stencil_offsets(d, width)           # (S, d)
     wk = jnp.stack([w1[:, off[:, k], k] for k in range(d)], -1)    # (N, S, d)
     dk = jnp.stack([dw1[:, off[:, k], k] for k in range(d)], -1)
-    w = jnp.prod(wk, -1)
+    w = _product_over_axes(wk)
     grads = []
     for k in range(d):
         g = dk[..., k]
@@ -96,4 +125,4 @@ def stencil(scene, x) -> Stencil:
 
 def ddmp_beta(xi):
     """(E9) blend beta = prod_d 4 xi_d (1 - xi_d): 1 at a cell centre, 0 on cell faces. xi (N, d)."""
-    return jnp.prod(4 * xi * (1 - xi), axis=-1)
+    return _product_over_axes(4 * xi * (1 - xi))

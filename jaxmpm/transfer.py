@@ -3,10 +3,12 @@
 Nodal arrays of all fields are stored flat as (K * n_nodes, C): field k's node n sits at row
 k * n_nodes + n (fields as the leading axis once reshaped to (K, n_nodes, C)). Every transfer of
 the step goes through the functions here, so a faster formulation changes only this module.
-So do the per-particle contractions over the stencil (`stencil_outer`, `stencil_apply`): written
-as sums of broadcast products, not einsums, which XLA's CPU backend turns into slow batched dot
-calls for these tiny shapes (benchmarks/throughput.py; tests/test_transfer_forms.py checks them,
-and their gradients, against the einsums).
+So do the per-particle contractions over the stencil (`stencil_outer`, `stencil_apply`): their
+values are sums of broadcast products, not einsums, which XLA's CPU backend turns into slow batched
+dot calls for these tiny shapes (benchmarks/throughput.py), and their tangents, under
+`jaxmpm.jit`, reductions, which reverse mode transposes to broadcasts instead of a padded copy per
+slice (`compile.bilinear_contraction`; tests/test_transfer_forms.py checks both forms, and their
+gradients, against the einsums).
 
 Three forms of the transfers:
   scatter / gather                  on a shapes.Stencil, (N, S, C) per particle and stencil node;
@@ -32,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmpm.compile import bilinear_contraction
 from jaxmpm.shapes import TENSOR_SHAPES, node_strides
 from jaxmpm.state import stencil_offsets
 
@@ -76,16 +79,17 @@ def cell_sum(st, field, n_fields, n_cells, values):
     return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)
 
 
-def stencil_outer(a, b):
-    """sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity
-    gradient sum_n v_n (x) grad S_n. Unrolled over the S stencil nodes (one fused loop)."""
-    return sum(a[:, s, :, None] * b[:, s, None, :] for s in range(a.shape[1]))
-
-
-def stencil_apply(m, b):
-    """m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the
-    stress force sigma . grad S_n. Unrolled over the B components."""
-    return sum(m[:, None, :, k] * b[:, :, None, k] for k in range(m.shape[-1]))
+# sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity gradient
+# sum_n v_n (x) grad S_n. Value unrolled over the S stencil nodes (one fused loop); tangent a
+# reduction under jaxmpm.jit (`compile.bilinear_contraction`).
+stencil_outer = bilinear_contraction(
+    lambda a, b: sum(a[:, s, :, None] * b[:, s, None, :] for s in range(a.shape[1])),
+    lambda a, b: jnp.sum(a[:, :, :, None] * b[:, :, None, :], axis=1))
+# m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the stress
+# force sigma . grad S_n. Value unrolled over the B components; tangent a reduction under jaxmpm.jit.
+stencil_apply = bilinear_contraction(
+    lambda m, b: sum(m[:, None, :, k] * b[:, :, None, k] for k in range(m.shape[-1])),
+    lambda m, b: jnp.sum(m[:, None, :, :] * b[:, :, None, :], axis=-1))
 
 
 # ------------------------------------------------------------------ transfers offset by offset
