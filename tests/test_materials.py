@@ -63,3 +63,24 @@ def test_library_keys_and_package_copy_equals_shared():
         pytest.skip("../shared/data is not beside this checkout")
     package = pathlib.Path(__file__).parents[1] / "jaxmpm" / "data" / "materials.toml"
     assert package.read_text() == shared.read_text()
+
+
+def test_constants_not_in_si_units_warn():
+    """A density past the densest element's, or a wave speed at rest past diamond's (rho0 given
+    in g/cm^3: 32x too fast), warns and names the units; real and scaled constants do not."""
+    import warnings
+
+    from jaxmpm import Material
+    with pytest.warns(UserWarning, match=r"materials\.al: its wave speed at rest is 1\d\d,\d{3} m/s.*rho0 in kg/m\^3"):
+        Material.make("al", "linear_elastic", rho0=2.7, E=70e9, nu=0.3)
+    with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3 is denser than any real material"):
+        Material.make("al", "linear_elastic", rho0=27000.0, E=70e9, nu=0.3)
+    with pytest.warns(UserWarning, match=r"materials\.w: its wave speed"):
+        Material.make("w", "stiffened_gas", rho0=1.0, gamma=4.4, p_inf=6e8, p0=1e5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.3)
+        Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)        # scaled units
+        for key in known_keys():
+            library_material(key)
+

@@ -58,6 +58,7 @@ class Material:
                 raise ValueError(f"{where}.{k} = {v!r} is invalid: allowed a number")
             check_constant(model, k, float(v), f"{where}.{k}")
             vals[k] = float(v)
+        warn_implausible_units(where, model, vals)
         return Material(key, model, tuple(vals.items()))
 
     def as_dict(self) -> dict[str, float]:
@@ -65,6 +66,38 @@ class Material:
 
     def to_dict(self) -> dict[str, Any]:
         return {"model": self.model, **self.as_dict()}
+
+
+# Above these a material at rest is not a real one: the densest element (osmium) has 22,590 kg/m^3,
+# the fastest longitudinal sound speed (diamond) is about 18 km/s.
+DENSEST = 2.5e4         # kg/m^3
+FASTEST = 2.5e4         # m/s
+
+
+def warn_implausible_units(where: str, model: str, constants: dict) -> None:
+    """A UserWarning when a material's density or its longitudinal wave speed at rest (at rho0)
+    is beyond any real material's: the usual sign of constants not in SI units (rho0 in g/cm^3
+    makes the wave speed 32x too fast). Only a warning: scaled, non-dimensional constants are
+    legitimate (the built-in elastic impact's wave speed is 1.16 m/s)."""
+    import warnings
+
+    import numpy as np
+
+    from jaxmpm.materials.models import model_of
+
+    rho0 = constants.get("rho0")
+    if rho0 is None:
+        return
+    m = model_of(model)
+    e0 = m.initial(constants)[1]
+    c0 = float(np.asarray(m.wave_speed(constants, np.array([rho0]), np.array([float(e0)]), 3))[0])
+    if rho0 > DENSEST:
+        warnings.warn(f"{where}.rho0 = {rho0:g} kg/m^3 is denser than any real material (osmium: 22,590): "
+                      "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)", UserWarning, stacklevel=3)
+    if c0 > FASTEST:
+        warnings.warn(f"{where}: its wave speed at rest is {c0:,.0f} m/s, faster than any real material's "
+                      "(diamond: about 18,000): are the constants in SI units (rho0 in kg/m^3, moduli in Pa)? "
+                      "With rho0 in g/cm^3 the speed comes out 32x too fast", UserWarning, stacklevel=3)
 
 
 @functools.lru_cache(maxsize=1)
