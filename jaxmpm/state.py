@@ -169,6 +169,14 @@ def check_state(scene, state: State) -> None:
               "energy": (n,), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
     if np.shape(state.t) != ():
         raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
+    if scene.transfer == "apic":
+        if state.C is None:
+            raise ValueError("state.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, "
+                             f"allowed an array of shape {(n, d, d)} (1/s; zeros at rest, as init_state gives)")
+        shapes["C"] = (n, d, d)
+    elif state.C is not None:
+        raise ValueError(f"state.C is set, but the scene's transfer {scene.transfer!r} has no affine velocity matrix "
+                         "(only 'apic' carries C): allowed None")
     for name, shape in shapes.items():
         a = getattr(state, name)
         if a is None:

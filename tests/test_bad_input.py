@@ -49,6 +49,13 @@ def run_with_state(**changes):
     jaxmpm.simulate(s, p, dataclasses.replace(st, **{k: f(st) for k, f in changes.items()}), progress=False)
 
 
+def apic_with_state(**changes):
+    s = scene(shape="bspline2", transfer="apic")
+    p = jaxmpm.default_params(s)
+    st = jaxmpm.init_state(s, p)
+    jaxmpm.simulate(s, p, dataclasses.replace(st, **{k: f(st) for k, f in changes.items()}), progress=False)
+
+
 def simulate_with(**kw):
     s = scene()
     p = jaxmpm.default_params(s)
@@ -177,6 +184,11 @@ CASES = [
     ("singular deformation gradient", lambda: run_with_state(F=lambda s: s.F.at[3].set(0.0)),
      r"state\.F of particle 3 \(phase 'block'\) has det F = 0: allowed det F > 0"),
     ("State of another scene", lambda: run_with_state(x=lambda s: s.x[:-1]), r"state\.x has shape .* the scene needs"),
+    ("affine matrix C on a scene without APIC", lambda: run_with_state(C=lambda s: jnp.zeros(s.x.shape + (2,))),
+     r"state\.C is set, but the scene's transfer 'musl' has no affine velocity matrix \(only 'apic' carries C\): allowed None"),
+    ("APIC state without its affine matrix C", lambda: apic_with_state(C=lambda s: None),
+     r"state\.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, allowed an array of shape \(\d+, 2, 2\)"),
+    ("APIC affine matrix of the wrong shape", lambda: apic_with_state(C=lambda s: s.C[:, :1]), r"state\.C has shape \(\d+, 1, 2\): the scene needs \(\d+, 2, 2\)"),
     # --- running
     ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(cfl = 0\.3, h = 0\.1 m\)"),
     ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed a finite time > state\.t = 0\.0 s"),
