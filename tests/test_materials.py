@@ -84,3 +84,16 @@ def test_constants_not_in_si_units_warn():
         for key in known_keys():
             library_material(key)
 
+
+
+def test_units_check_runs_while_a_step_is_traced():
+    """Library materials are resolved while a step is traced: the units check evaluates the wave
+    speed on constants there too (it raised a TracerArrayConversionError before)."""
+    import jaxmpm
+    scene = jaxmpm.Scene(grid=jaxmpm.Grid(cells=(8,), h=1 / 8), drag=1.0,
+                         phases=(jaxmpm.Phase("water", "water", jaxmpm.Box((0.0,), (0.5,)), field=0),
+                                 jaxmpm.Phase("air", "air", jaxmpm.Box((0.5,), (1.0,)), field=1)))
+    params = jaxmpm.default_params(scene)
+    step = jaxmpm.make_step(scene)
+    s = jax.jit(lambda s: jax.lax.fori_loop(0, 3, lambda i, s: step(params, s), s))(jaxmpm.init_state(scene, params))
+    assert bool(jnp.all(jnp.isfinite(s.x))) and float(s.t) > 0

@@ -81,6 +81,7 @@ def warn_implausible_units(where: str, model: str, constants: dict) -> None:
     legitimate (the built-in elastic impact's wave speed is 1.16 m/s)."""
     import warnings
 
+    import jax
     import numpy as np
 
     from jaxmpm.materials.models import model_of
@@ -89,8 +90,9 @@ def warn_implausible_units(where: str, model: str, constants: dict) -> None:
     if rho0 is None:
         return
     m = model_of(model)
-    e0 = m.initial(constants)[1]
-    c0 = float(np.asarray(m.wave_speed(constants, np.array([rho0]), np.array([float(e0)]), 3))[0])
+    with jax.ensure_compile_time_eval():          # materials are also resolved while a step is traced
+        e0 = m.initial(constants)[1]
+        c0 = float(np.asarray(m.wave_speed(constants, np.array([rho0]), np.array([float(e0)]), 3))[0])
     if rho0 > DENSEST:
         warnings.warn(f"{where}.rho0 = {rho0:g} kg/m^3 is denser than any real material (osmium: 22,590): "
                       "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)", UserWarning, stacklevel=3)
