@@ -46,10 +46,7 @@ def _product_over_axes(a):
 def _product_over_axes_jvp(primals, tangents):
     (a,), (da,) = primals, tangents
     d = a.shape[-1]
-    tangent = da[..., 0] * _product_of(a, [j for j in range(d) if j != 0])
-    for k in range(1, d):
-        tangent = tangent + da[..., k] * _product_of(a, [j for j in range(d) if j != k])
-    return jnp.prod(a, -1), tangent
+    return jnp.prod(a, -1), sum(da[..., k] * _product_of(a, [j for j in range(d) if j != k]) for k in range(d))
 
 
 def _product_of(a, axes):

@@ -79,17 +79,27 @@ def cell_sum(st, field, n_fields, n_cells, values):
     return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)
 
 
-# sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity gradient
-# sum_n v_n (x) grad S_n. Value unrolled over the S stencil nodes (one fused loop); tangent a
-# reduction under jaxmpm.jit (`compile.bilinear_contraction`).
-stencil_outer = bilinear_contraction(
+_outer = bilinear_contraction(
     lambda a, b: sum(a[:, s, :, None] * b[:, s, None, :] for s in range(a.shape[1])),
     lambda a, b: jnp.sum(a[:, :, :, None] * b[:, :, None, :], axis=1))
-# m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the stress
-# force sigma . grad S_n. Value unrolled over the B components; tangent a reduction under jaxmpm.jit.
-stencil_apply = bilinear_contraction(
+_apply = bilinear_contraction(
     lambda m, b: sum(m[:, None, :, k] * b[:, :, None, k] for k in range(m.shape[-1])),
     lambda m, b: jnp.sum(m[:, None, :, :] * b[:, :, None, :], axis=-1))
+
+
+def stencil_outer(a, b):
+    """sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity
+    gradient sum_n v_n (x) grad S_n (1/s for v in m/s, grad S in 1/m). Value unrolled over the S
+    stencil nodes (one fused loop); tangent a reduction under jaxmpm.jit
+    (`compile.bilinear_contraction`)."""
+    return _outer(a, b)
+
+
+def stencil_apply(m, b):
+    """m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the
+    stress force sigma . grad S_n (Pa/m). Value unrolled over the B components; tangent a
+    reduction under jaxmpm.jit."""
+    return _apply(m, b)
 
 
 # ------------------------------------------------------------------ transfers offset by offset

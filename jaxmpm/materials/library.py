@@ -12,9 +12,13 @@ scene file, with `library = "<key>"` to start from a library entry and override 
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from typing import Any
+
+import jax
+import numpy as np
 
 try:
     import tomllib
@@ -79,11 +83,6 @@ def warn_implausible_units(where: str, model: str, constants: dict) -> None:
     is beyond any real material's: the usual sign of constants not in SI units (rho0 in g/cm^3
     makes the wave speed 32x too fast). Only a warning: scaled, non-dimensional constants are
     legitimate (the built-in elastic impact's wave speed is 1.16 m/s)."""
-    import warnings
-
-    import jax
-    import numpy as np
-
     from jaxmpm.materials.models import model_of
 
     rho0 = constants.get("rho0")
