@@ -131,6 +131,14 @@ def _cfl_time_step(lay, params, state, cfl=None):
 
 
 # ----------------------------------------------------------------------------------- stages
+# Each stage of the step runs under a jax.named_scope of its name in STAGES, and the parts of the
+# grid update and of the grid-to-particle stage under those in STAGE_PARTS (where the scene has
+# them): XLA's operations carry the names in their metadata, so that a profile can put its
+# kernels' times on the stages (benchmarks/profile_step.py). The names change no computation.
+STAGES = ("1_shape_functions", "2_particle_to_grid", "3_grid_update", "4_grid_to_particle", "5_constitutive")
+STAGE_PARTS = ("ddmp_operators", "stress_force", "interface_force", "exchange", "remap", "velocity_gradient")
+
+
 def body_acceleration(lay, params, state):
     """(N, d) per-particle body acceleration from gravity and per-phase body forces (m/s^2), or None."""
     scene = lay.scene
@@ -170,13 +178,18 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     continuity form's volume rate v -> (N,) (`multifield.interface_force`) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
-    dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume) if (beta is not None or scene.has_interface_forces) else None
+    dg = None
+    if beta is not None or scene.has_interface_forces:
+        with jax.named_scope("ddmp_operators"):
+            dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume)
     m = g["m"]
     v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
-    f = nodal_stress_force(lay, dg, g)
+    with jax.named_scope("stress_force"):
+        f = nodal_stress_force(lay, dg, g)
     p_amb, volume_rate = None, None
     if scene.has_interface_forces:
-        I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
+        with jax.named_scope("interface_force"):
+            I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
         f = f + I
     if acc_p is not None:
         f = f + lay.particle_sum(scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
@@ -186,7 +199,8 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
         a = a - params.damping * v
     a = _apply_bc(lay, a)
     if scene.has_exchange:
-        F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
+        with jax.named_scope("exchange"):
+            F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
         a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
     return v, a, dg, p_amb, volume_rate
 
@@ -264,28 +278,38 @@ def seed_update(lay, params, state, dt):
     scene = lay.scene
     d = lay.dim
     m_min = _mass_floor(lay, state)
-    st = stencil(scene, state.x)                                                   # 1
-    beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
-    g = particle_to_grid(lay, params, st, state, beta)                             # 2
-    acc_p = body_acceleration(lay, params, state)
-    v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)  # 3
-    p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
-    if scene.transfer == "musl":                                                   # 4
-        v = state.v + dt * interpolate(st, lay.field, a_n)
-        vol_n = g["vol"][..., 0] if "vol" in g else None
-        v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
-        x = state.x + dt * interpolate(st, lay.field, v_r)
-        L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state))
-        if scene.continuity_form == "transport":                                   # (E7)
-            extra = volume_rate(v_r)
-            L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-        moved = replace(state, x=x, v=v)
-    else:
-        half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
-        va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
-        moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
-        L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
-    return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, L, dt, p_amb))  # 5
+    with jax.named_scope(STAGES[0]):                                               # 1
+        st = stencil(scene, state.x)
+        beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
+    with jax.named_scope(STAGES[1]):                                               # 2
+        g = particle_to_grid(lay, params, st, state, beta)
+        acc_p = body_acceleration(lay, params, state)
+    with jax.named_scope(STAGES[2]):                                               # 3
+        v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
+    with jax.named_scope(STAGES[3]):                                               # 4
+        p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
+        if scene.transfer == "musl":
+            v = state.v + dt * interpolate(st, lay.field, a_n)
+            vol_n = g["vol"][..., 0] if "vol" in g else None
+            with jax.named_scope("remap"):
+                v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
+            x = state.x + dt * interpolate(st, lay.field, v_r)
+            with jax.named_scope("velocity_gradient"):
+                L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg,
+                                               radius=particle_radius(lay, state))
+                if scene.continuity_form == "transport":                           # (E7)
+                    extra = volume_rate(v_r)
+                    L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
+            moved = replace(state, x=x, v=v)
+        else:
+            half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
+            va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
+            moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
+            with jax.named_scope("velocity_gradient"):
+                L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
+    with jax.named_scope(STAGES[4]):                                               # 5
+        new = constitutive(lay, params, moved, L, dt, p_amb)
+    return replace(moved, t=state.t + dt, **new)
 
 
 def apic_update(lay, params, state, dt):
@@ -298,24 +322,27 @@ def apic_update(lay, params, state, dt):
     d, h = lay.dim, scene.grid.h
     dinv = 4.0 / h**2
     m_min = _mass_floor(lay, state)
-    ost = offset_stencil(scene.grid, state.x, "bspline2")
+    with jax.named_scope(STAGES[0]):
+        ost = offset_stencil(scene.grid, state.x, "bspline2")
     m, V = state.mass, state.volume
-    affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
-    affine = jnp.transpose(affine, (1, 2, 0))                                           # (d, d, N)
-    mv = m[:, None] * state.v
-    acc_p = body_acceleration(lay, params, state)
-    if acc_p is not None:
-        mv = mv + dt * m[:, None] * acc_p
-    mv = mv.T                                                                            # (d, N)
 
     def contrib(w, dpos, m, mv, affine):  # mass and momentum w m, w (m v + affine . (x_n - x_p))
         return [w * m] + [w * (mv[c] + sum(affine[c, k] * dpos[k] for k in range(d))) for c in range(d)]
 
-    g = lay.particle_sum(scatter_by_window(ost, contrib, (m, mv, affine), d + 1, m.dtype))[None]   # (1, n_nodes, 1 + d)
-    v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
-    if scene.damping is not None:
-        v_n = v_n * jnp.exp(-params.damping * dt)
-    v_n = _apply_bc(lay, v_n)[0].T                                                       # (d, n_nodes)
+    with jax.named_scope(STAGES[1]):
+        affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
+        affine = jnp.transpose(affine, (1, 2, 0))                                           # (d, d, N)
+        mv = m[:, None] * state.v
+        acc_p = body_acceleration(lay, params, state)
+        if acc_p is not None:
+            mv = mv + dt * m[:, None] * acc_p
+        mv = mv.T                                                                            # (d, N)
+        g = lay.particle_sum(scatter_by_window(ost, contrib, (m, mv, affine), d + 1, m.dtype))[None]   # (1, n_nodes, 1 + d)
+    with jax.named_scope(STAGES[2]):
+        v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
+        if scene.damping is not None:
+            v_n = v_n * jnp.exp(-params.damping * dt)
+        v_n = _apply_bc(lay, v_n)[0].T                                                       # (d, n_nodes)
 
     def accumulate(carry, w, dpos, vals):  # v = sum w v_n, B = sum w v_n (x) (x_n - x_p)
         v, B = carry
@@ -323,10 +350,13 @@ def apic_update(lay, params, state, dt):
         return v + wv, B + wv[:, None] * dpos[None]
 
     n = m.shape[0]
-    v, B = gather_by_offset(ost, v_n, accumulate, (jnp.zeros_like(ost.fx), jnp.zeros_like(ost.fx, shape=(d, d, n))))
-    v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
-    moved = replace(state, x=state.x + dt * v, v=v, C=C)
-    return replace(moved, t=state.t + dt, **constitutive(lay, params, moved, C, dt))
+    with jax.named_scope(STAGES[3]):
+        v, B = gather_by_offset(ost, v_n, accumulate, (jnp.zeros_like(ost.fx), jnp.zeros_like(ost.fx, shape=(d, d, n))))
+        v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
+        moved = replace(state, x=state.x + dt * v, v=v, C=C)
+    with jax.named_scope(STAGES[4]):
+        new = constitutive(lay, params, moved, C, dt)
+    return replace(moved, t=state.t + dt, **new)
 
 
 def make_step(scene, shards=1, axis_name=None):

@@ -7,6 +7,7 @@ import pytest
 
 import jaxmpm
 from jaxmpm.scene import Boundary
+from jaxmpm.step import STAGE_PARTS, STAGES
 
 
 def _base():
@@ -75,3 +76,18 @@ def test_nonzero_param_of_an_absent_effect_is_an_error():
     bad = dataclasses.replace(params, gravity=params.gravity.at[1].set(-9.81))
     with pytest.raises(ValueError, match="gravity"):
         jaxmpm.simulate(scene, bad, state, t_end=0.01, progress=False)
+
+
+@pytest.mark.parametrize("name, options, parts", [
+    ("debris_cloud", dict(resolution=0.75, fields=2), STAGE_PARTS),
+    ("elastic_impact", {}, ("ddmp_operators", "stress_force", "remap", "velocity_gradient")),
+    ("mpm88", {}, ())])
+def test_stages_are_named_in_the_step(name, options, parts):
+    """Each stage of the step (and each part of the grid update and the grid-to-particle stage
+    that the scene has) carries its name into the lowered program, where a profile reads it
+    (benchmarks/profile_step.py); a part the scene does not have is not named."""
+    scene = jaxmpm.load_scene(name, **options)
+    params = jaxmpm.default_params(scene)
+    text = jax.jit(jaxmpm.make_step(scene)).lower(params, jaxmpm.init_state(scene, params)).as_text(debug_info=True)
+    for label in STAGES + STAGE_PARTS:
+        assert (f"/{label}/" in text) == (label in STAGES or label in parts), (name, label)
