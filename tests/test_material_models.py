@@ -92,7 +92,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     constant equal central differences of the returned values, at first yield (eps_p = 0, where the
     hardening's slope is infinite) and with prior plastic strain, and the returned stress lies on
     the yield surface (with the plastic rate: at the step's own plastic rate dl / dt)."""
-    from jaxmpm.materials.hydro import _flow_stress, radial_return
+    from jaxmpm.materials.hydro import _flow_stress, radial_return, thermal_softening
     c = {k: jnp.asarray(v) for k, v in library_material("al2024").constants}
     rng = np.random.default_rng(3)
     n = 12
@@ -102,7 +102,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     dev = rng.normal(size=(n, 3, 3))
     dev = 0.5 * (dev + np.swapaxes(dev, 1, 2))
     dev = dev - np.trace(dev, axis1=1, axis2=2)[:, None, None] / 3 * np.eye(3)
-    Y0, _ = _flow_stress(strength, c, eps, epsdot, e, 0.0)
+    Y0, _ = _flow_stress(strength, c, eps, epsdot, thermal_softening(strength, c, e), 0.0)
     seq0 = np.sqrt(1.5 * np.sum(dev * dev, axis=(1, 2)))
     s_tr = jnp.asarray(dev * (np.asarray(Y0) * rng.uniform(1.05, 3.0, n) / seq0)[:, None, None])   # plastic, 5-200% over
 
@@ -114,7 +114,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
         return jnp.sum(s * s, axis=(1, 2)) * 1e-16 + dl, s
 
     s, dl = radial_return(strength, c, s_tr, eps, epsdot, e, jnp.zeros(n), dt=dt)
-    Y, _ = _flow_stress(strength, c, eps + dl, epsdot if dt is None else dl / dt, e, 0.0)
+    Y, _ = _flow_stress(strength, c, eps + dl, epsdot if dt is None else dl / dt, thermal_softening(strength, c, e), 0.0)
     np.testing.assert_allclose(np.sqrt(1.5 * np.sum(np.asarray(s) ** 2, axis=(1, 2))), Y, rtol=1e-9)   # on the surface
     args = [s_tr, eps, epsdot, e, c["A"]]
     for i, (x, h) in enumerate(zip(args, [1e-5 * float(jnp.max(jnp.abs(s_tr))), 1e-7, None, 1.0, 1e2])):

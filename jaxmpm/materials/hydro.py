@@ -219,8 +219,16 @@ def rate_factor(c, epsdot):
 
 
 # --------------------------------------------------------------------------- strength
-def _flow_stress(strength, c, eps, epsdot, e, p):
-    """Yield stress Y(eps_p) (N,) Pa and its derivative dY/deps_p."""
+def thermal_softening(strength, c, e):
+    """Johnson-Cook's thermal factor 1 - T*^m (N,) of the specific internal energy e (J/kg) for
+    'johnson_cook_thermal*' strengths, else 1."""
+    if strength.removesuffix("_plastic_rate") == "johnson_cook_thermal":
+        return 1 - _safe_pow(homologous_temperature(c, e), c["m"])
+    return jnp.ones_like(e)
+
+
+def _flow_stress(strength, c, eps, epsdot, softening, p):
+    """Yield stress Y(eps_p) (N,) Pa and its derivative dY/deps_p; softening: `thermal_softening`."""
     strength = strength.removesuffix("_plastic_rate")
     if strength == "von_mises":
         return c["Y"] * jnp.ones_like(eps), jnp.zeros_like(eps)
@@ -228,7 +236,7 @@ def _flow_stress(strength, c, eps, epsdot, e, p):
         return jnp.clip(c["Y0"] + c["dY_dp"] * p, 0.0, c["Ymax"]), jnp.zeros_like(eps)
     scale = rate_factor(c, epsdot)
     if strength == "johnson_cook_thermal":
-        scale = scale * (1 - _safe_pow(homologous_temperature(c, e), c["m"]))
+        scale = scale * softening
     eps_s = jnp.maximum(eps, 1e-12)
     hardening = eps_s ** c["n"]                  # one power: eps^(n-1) = eps^n / eps
     Y = (c["A"] + c["B"] * hardening) * scale
@@ -296,7 +304,8 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     G = c["G"]
     seq = equivalent_stress(s_tr)
     plastic_rate = strength.endswith("_plastic_rate")
-    Y0, _ = _flow_stress(strength, c, eps, jnp.zeros_like(epsdot) if plastic_rate else epsdot, e, p)
+    soft = thermal_softening(strength, c, e)
+    Y0, _ = _flow_stress(strength, c, eps, jnp.zeros_like(epsdot) if plastic_rate else epsdot, soft, p)
     plastic = seq > Y0
     dl0 = jnp.where(plastic, (seq - Y0) / (3 * G), 0.0)
     dl = dl0
@@ -305,7 +314,7 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
             Y, dY = _flow_stress(strength, c, eps + dl, epsdot, e, p)
             return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
 
-        dl = _implicit_root(residual, _newton(residual, iterations), dl0, c, seq, eps, epsdot, e, p)
+        dl = _implicit_root(residual, _newton(residual, iterations), dl0, c, seq, eps, epsdot, soft, p)
     elif plastic_rate:      # f(0+) > 0 > f(dl0)
         def residual(dl, c, seq, eps, e, p, dt):
             rate = dl / dt
@@ -314,7 +323,7 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
             dY = dY + jnp.where(above, Y / rate_factor(c, rate) * c["C"] / jnp.where(above, dl, 1.0), 0.0)
             return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
 
-        dl = _implicit_root(residual, _bracketed_newton(residual, 15), dl0, c, seq, eps, e, p, dt)
+        dl = _implicit_root(residual, _bracketed_newton(residual, 15), dl0, c, seq, eps, soft, p, dt)
     dl = jnp.where(plastic, dl, 0.0)
     factor = jnp.where(plastic, (seq - 3 * G * dl) / seq, 1.0)
     return s_tr * factor[:, None, None], dl
