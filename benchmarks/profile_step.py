@@ -8,7 +8,9 @@ operation's metadata) and, in the gradient, on its pass:
   recompute     each step evaluated again in reverse, from its stored state;
   transpose     the step's derivative transposed (reverse mode proper).
 Control-flow kernels (while loops, conditionals, calls) are not counted themselves: the kernels
-they run are.
+they run are. An operation under two parts' names counts in the first of STAGE_PARTS: the
+continuity form's volume rate (E7), built with the interface forces and evaluated with the
+velocity gradient, shows as 4_grid_to_particle/interface_force.
 
 The problem is grad_by_scene.py's: a built-in scene at its defaults, float64, N checkpointed steps
 from step 100, d loss / d a for a scale a of the initial velocities. Each kernel's trace event
