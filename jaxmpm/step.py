@@ -98,6 +98,23 @@ def _apply_bc(lay, v):
     return v if lay.bc_mask is None else v * jnp.asarray(lay.bc_mask, v.dtype)
 
 
+@jax.custom_jvp
+def tangent_fenced(x, on):
+    """x (any array); its tangent taken under lax.cond(on), zero where on is false. Reverse mode
+    transposes the conditional, so x's cotangent enters it as one array: XLA cannot fuse the
+    cotangent's computation into each of its consumers (where, in the velocity gradient's
+    transpose, it was repeated for each stencil node and each consumer). Exact where x's tangent
+    does not matter when on is false (the step's dt = 0, whose update the step discards)."""
+    return x
+
+
+@tangent_fenced.defjvp
+def _tangent_fenced_jvp(primals, tangents):
+    x, on = primals
+    dx, _ = tangents
+    return x, jax.lax.cond(on, lambda t: t, jnp.zeros_like, dx)
+
+
 def _mass_floor(lay, state):
     eps = jnp.finfo(state.mass.dtype).eps
     return lay.particle_max(state.mass) * eps**2
@@ -308,7 +325,10 @@ def seed_update(lay, params, state, dt):
             with jax.named_scope("velocity_gradient"):
                 L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
     with jax.named_scope(STAGES[4]):                                               # 5
-        new = constitutive(lay, params, moved, L, dt, p_amb)
+        # L's cotangent as one array: XLA had fused its computation from the constitutive
+        # update's transpose into each consumer in the velocity gradient's transpose, repeated per
+        # stencil node (that stage's transpose 8.8 -> 2.6-5.5 of its forward, benchmarks/NOTES.md)
+        new = constitutive(lay, params, moved, tangent_fenced(L, dt > 0), dt, p_amb)
     return replace(moved, t=state.t + dt, **new)
 
 

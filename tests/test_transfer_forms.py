@@ -344,3 +344,25 @@ def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):
     g_ref = jax.jit(jax.grad(loss(by_stencil), argnums=range(5)))(*args)
     for a, b in zip(g_new, g_ref):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_tangent_fence_passes_the_tangent_where_on_and_zero_where_off():
+    """`step.tangent_fenced(x, on)` is x; its tangent and cotangent are x's where on (the step's
+    dt > 0) and zero where off, in forward and reverse mode, batched (a per-member dt of an
+    ensemble) and at second order; the step's conditional is in the derivative's program."""
+    from jaxmpm.step import tangent_fenced
+    x = jnp.linspace(-1.0, 2.0, 12).reshape(3, 2, 2)
+    f = lambda x, on: jnp.sum(jnp.sin(tangent_fenced(x * x, on)))
+    for on in (True, False):
+        assert np.array_equal(tangent_fenced(x, jnp.asarray(on)), x)
+        expected = 2 * x * jnp.cos(x * x) if on else jnp.zeros_like(x)
+        np.testing.assert_allclose(jax.grad(f)(x, jnp.asarray(on)), expected, rtol=1e-14)
+        t = jax.jvp(lambda x: f(x, jnp.asarray(on)), (x,), (jnp.ones_like(x),))[1]
+        np.testing.assert_allclose(t, jnp.sum(expected), rtol=1e-14)
+        h = jax.grad(lambda x: jnp.sum(jax.grad(f)(x, jnp.asarray(on))))(x)            # second order
+        np.testing.assert_allclose(h, (2 * jnp.cos(x * x) - 4 * x * x * jnp.sin(x * x)) if on else 0 * x, rtol=1e-13)
+    on = jnp.asarray([True, False, True])
+    g = jax.vmap(jax.grad(lambda x, on: jnp.sum(jnp.sin(tangent_fenced(x * x, on)))))(x, on)
+    np.testing.assert_allclose(g, jnp.where(on[:, None, None], 2 * x * jnp.cos(x * x), 0.0), rtol=1e-14)
+    jaxpr = str(jax.make_jaxpr(jax.grad(f))(x, jnp.asarray(True)))
+    assert "cond[" in jaxpr
