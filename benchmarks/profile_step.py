@@ -15,15 +15,17 @@ velocity gradient, shows as 4_grid_to_particle/interface_force.
 The problem is grad_by_scene.py's: a built-in scene at its defaults, float64, N checkpointed steps
 from step 100, d loss / d a for a scale a of the initial velocities. Each kernel's trace event
 costs time, so a run under the profiler takes longer than without it, most for programs of many
-small kernels; read the table's shares and ratios, and the untraced times printed above it.
+small kernels; read the table's shares and ratios, and the untraced times printed above it. Each
+cell is the fastest of --runs calls (the machine's load lengthens some of them).
 
-    python benchmarks/profile_step.py [--scene elastic_impact] [--steps 20] [--runs 3] [--parts]
+    python benchmarks/profile_step.py [--scene elastic_impact] [--steps 20] [--runs 5] [--parts]
 
 Prints the table; writes benchmarks/results/profile_<scene>.csv (ms per step under the profiler).
 """
 from __future__ import annotations
 
 import argparse
+import bisect
 import collections
 import csv
 import glob
@@ -75,7 +77,8 @@ def pass_of(op_name):
 
 
 def kernel_times(compiled, args, runs):
-    """{HLO instruction name: microseconds per run} from a profiler trace of `runs` calls."""
+    """[{HLO instruction name: microseconds}] of each of `runs` calls, from one profiler trace
+    (a kernel belongs to the call that started last before it)."""
     for _ in range(2):
         jax.block_until_ready(compiled(*args))
     with tempfile.TemporaryDirectory() as d:
@@ -83,12 +86,14 @@ def kernel_times(compiled, args, runs):
             for _ in range(runs):
                 jax.block_until_ready(compiled(*args))
         trace = json.load(gzip.open(glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)[0]))
-    events = trace["traceEvents"] if isinstance(trace, dict) else trace
-    total = collections.Counter()
+    events = [e for e in (trace["traceEvents"] if isinstance(trace, dict) else trace) if e.get("ph") == "X" and "dur" in e]
+    calls = sorted(e["ts"] for e in events if e.get("name", "").startswith("PjitFunction"))[-runs:]
+    per_call = [collections.Counter() for _ in calls]
     for e in events:
-        if e.get("ph") == "X" and "dur" in e:
-            total[e.get("name", "")] += e["dur"] / runs
-    return total
+        i = bisect.bisect_right(calls, e["ts"]) - 1
+        if i >= 0:
+            per_call[i][e.get("name", "")] += e["dur"]
+    return per_call
 
 
 def wall_seconds(compiled, args, rounds=5):
@@ -109,17 +114,23 @@ def profile(name, n_steps, runs, parts):
     programs = {"forward": jaxmpm.jit(loss).lower(a).compile(),
                 "gradient": jaxmpm.jit(jax.value_and_grad(loss)).lower(a).compile()}
     wall = {k: wall_seconds(c, (a,)) for k, c in programs.items()}
-    table = collections.defaultdict(lambda: collections.Counter())
+    table = collections.defaultdict(dict)           # stage -> column -> the fastest call's ms per step
     for kind, compiled in programs.items():
         names = kernel_names(compiled.as_text())
-        for kernel, us in kernel_times(compiled, (a,), runs).items():
-            if kernel in names:
-                op = names[kernel]
-                column = "forward" if kind == "forward" else pass_of(op)
-                table[stage_of(op, parts)][column] += us / n_steps / 1e3
+        calls = kernel_times(compiled, (a,), runs)
+        if len(calls) < runs:
+            raise RuntimeError(f"the profiler's trace shows {len(calls)} calls of {runs}: no PjitFunction events")
+        for times in calls:
+            cells = collections.Counter()
+            for kernel, us in times.items():
+                if kernel in names:
+                    op = names[kernel]
+                    cells[stage_of(op, parts), "forward" if kind == "forward" else pass_of(op)] += us / n_steps / 1e3
+            for (stage, column), ms in cells.items():
+                table[stage][column] = min(ms, table[stage].get(column, float("inf")))
     rows = []
     for stage in sorted(table, key=lambda s: (s == OUTSIDE, s)):
-        c = table[stage]
+        c = collections.Counter(table[stage])
         grad = sum(c[p] for p in PASSES)
         rows.append(dict(scene=name, stage=stage, forward_ms=c["forward"], **{p.replace(" ", "_") + "_ms": c[p] for p in PASSES},
                          gradient_ms=grad, ratio=grad / c["forward"] if c["forward"] > 0 else float("nan")))
@@ -132,7 +143,7 @@ def main():
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--scene", default="elastic_impact", help=" | ".join(SCENES))
     ap.add_argument("--steps", type=int, default=20, help="checkpointed steps (after 100 untimed)")
-    ap.add_argument("--runs", type=int, default=3, help="runs of each program under the profiler")
+    ap.add_argument("--runs", type=int, default=5, help="calls of each program under the profiler (each cell: the fastest)")
     ap.add_argument("--parts", action="store_true", help="split the grid update and the grid-to-particle stage into their parts")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     args = ap.parse_args()
