@@ -327,7 +327,7 @@ def seed_update(lay, params, state, dt):
     with jax.named_scope(STAGES[4]):                                               # 5
         # L's cotangent as one array: XLA had fused its computation from the constitutive
         # update's transpose into each consumer in the velocity gradient's transpose, repeated per
-        # stencil node (that stage's transpose 8.8 -> 2.6-5.5 of its forward, benchmarks/NOTES.md)
+        # stencil node (that stage's transpose: 8.8 -> 2.0-2.6 forward runs of it, benchmarks/NOTES.md)
         new = constitutive(lay, params, moved, tangent_fenced(L, dt > 0), dt, p_amb)
     return replace(moved, t=state.t + dt, **new)
 
