@@ -40,6 +40,7 @@ import jax
 
 from devices import describe   # benchmarks/devices.py
 from grad_by_scene import SCENES, problem
+from jaxmpm.step import STAGE_PARTS, STAGES
 
 jax.config.update("jax_enable_x64", True)
 
@@ -61,7 +62,6 @@ def kernel_names(hlo_text):
 
 def stage_of(op_name, parts):
     """The stage (and with parts=True the part within it) an operation's op_name names."""
-    from jaxmpm.step import STAGE_PARTS, STAGES
     stage = next((s for s in STAGES if f"/{s}/" in f"/{op_name}/"), None)
     if stage is None:
         return OUTSIDE
