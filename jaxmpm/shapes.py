@@ -59,24 +59,34 @@ def _product_of(a, axes):
     return out
 
 
+def _along_axis(a, k, d):
+    """(N, width) -> (N, 1, .., width, .., 1): the width on axis k + 1 of d stencil axes."""
+    return a.reshape((a.shape[0],) + tuple(a.shape[1] if e == k else 1 for e in range(d)))
+
+
+def _product_of_list(arrays):
+    """The broadcast product of a list of arrays, left to right."""
+    out = arrays[0]
+    for a in arrays[1:]:
+        out = out * a
+    return out
+
+
 def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     d, h = grid.dim, grid.h
     xi = (x - jnp.asarray(grid.origin, x.dtype)) / h
     base = jnp.clip(jnp.floor(xi - base_shift).astype(jnp.int32), lo_clip, np.asarray(grid.cells) - hi_clip)
     fx = xi - base
-    w1, dw1 = w1d(fx), dw1d(fx) / h          # (N, width, d)
     off = stencil_offsets(d, width)           # (S, d)
-    wk = jnp.stack([w1[:, off[:, k], k] for k in range(d)], -1)    # (N, S, d)
-    dk = jnp.stack([dw1[:, off[:, k], k] for k in range(d)], -1)
-    w = _product_over_axes(wk)
-    grads = []
-    for k in range(d):
-        g = dk[..., k]
-        for e in range(d):
-            if e != k:
-                g = g * wk[..., e]
-        grads.append(g)
-    dw = jnp.stack(grads, -1)
+    n = x.shape[0]
+    w1, dw1 = w1d(fx), dw1d(fx) / h          # (N, width, d)
+    # the tensor products by broadcasting, axis k of the (N, width, ..., width) block varying with
+    # node offset k (C order, as stencil_offsets): their tangents transpose to sums over the other
+    # axes, where indexing the 1D weights by the stencil's offsets transposed to scatter-adds
+    wk = [_along_axis(w1[:, :, k], k, d) for k in range(d)]
+    w = _product_of_list(wk).reshape(n, -1)
+    dw = jnp.stack([_product_of_list([_along_axis(dw1[:, :, k], k, d) if e == k else wk[e] for e in range(d)])
+                    .reshape(n, -1) for k in range(d)], -1)
     strides = jnp.asarray(node_strides(grid.nodes))
     node = jnp.sum((base[:, None, :] + jnp.asarray(off)[None]) * strides, -1)
     cell_strides = jnp.asarray(node_strides(grid.cells))
