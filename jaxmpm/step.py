@@ -112,7 +112,7 @@ def tangent_fenced(x, on):
 def _tangent_fenced_jvp(primals, tangents):
     x, on = primals
     dx, _ = tangents
-    return x, jax.lax.cond(on, lambda t: t, jnp.zeros_like, dx)
+    return x, jax.lax.cond(on, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), dx)
 
 
 def _mass_floor(lay, state):
@@ -300,6 +300,13 @@ def seed_update(lay, params, state, dt):
         beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
     with jax.named_scope(STAGES[1]):                                               # 2
         g = particle_to_grid(lay, params, st, state, beta)
+        if lay.n_fields == 1:
+            # the nodal parts' cotangent as one array: XLA had fused its computation (about 130
+            # operations per node) into the transposed scatter's gather, repeated per particle and
+            # stencil node. One field: gradients 0.93-0.97 of the time before (elastic impact,
+            # Taylor bars, vibrating bar); two fields 1.01-1.07, where the cotangent's computation
+            # moved into the DDMP operators' transposes (benchmarks/NOTES.md, Gradients)
+            g = tangent_fenced(g, dt > 0)
         acc_p = body_acceleration(lay, params, state)
     with jax.named_scope(STAGES[2]):                                               # 3
         v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)

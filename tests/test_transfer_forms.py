@@ -391,3 +391,10 @@ def test_tangent_fence_passes_the_tangent_where_on_and_zero_where_off():
     np.testing.assert_allclose(g, jnp.where(on[:, None, None], 2 * x * jnp.cos(x * x), 0.0), rtol=1e-14)
     jaxpr = str(jax.make_jaxpr(jax.grad(f))(x, jnp.asarray(True)))
     assert "cond[" in jaxpr
+    def tree(x, on):
+        t = tangent_fenced({"a": x * x, "b": (2 * x, 3 * x)}, on)
+        return jnp.sum(jnp.sin(t["a"])) + jnp.sum(t["b"][1])
+
+    for on in (True, False):                                              # a pytree: one conditional
+        expected = (2 * x * jnp.cos(x * x) + 3) if on else jnp.zeros_like(x)
+        np.testing.assert_allclose(jax.grad(tree)(x, jnp.asarray(on)), expected, rtol=1e-14)
