@@ -35,10 +35,11 @@ def node_strides(nodes):
 
 @jax.custom_jvp
 def _product_over_axes(a):
-    """prod over the last axis (d <= 3): the value one reduction, in the forward step and in the
-    gradient's alike. jnp.prod's own derivative rule recomputes the value as products of transposed
-    slices, which XLA then fused into every consumer of the weights: in a gradient of the elastic
-    impact, the scatter's contributions took 0.4 ms per step where the forward step's took 0.05."""
+    """prod over the last axis (d <= 3; DDMP's beta): the value one reduction, in the forward step
+    and in the gradient's alike. jnp.prod's own derivative rule recomputes the value as products of
+    transposed slices, which XLA then fused into every consumer (when the stencil weights were such
+    a product too, the elastic impact's scatter contributions took 0.4 ms per step in its gradient
+    where the forward step's took 0.05)."""
     return jnp.prod(a, -1)
 
 
