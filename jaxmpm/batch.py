@@ -17,6 +17,8 @@ same call, and `jaxmpm.distributed.to_host` gathers the results.
 from __future__ import annotations
 
 import dataclasses
+import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -103,6 +105,24 @@ def _as_member(i, check, *args):
         raise ValueError(str(e) if i is None else f"member {i}: {e}") from None
 
 
+REPLANS = 2   # how many times `ensemble` runs a batch again when its own plan of n_steps falls short
+
+
+def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B):
+    """The vmapped fixed-length runs of a batch (state batched), split across devices if shard."""
+    checkpoint = checkpoint_mode(checkpoint, member(state, 0), n_steps, copies=B)
+
+    def one(p, s):
+        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint)
+
+    if shard:
+        (params_batch, state), m = _shard((params_batch, state), B)
+    final, history = jit(jax.vmap(one))(params_batch, state)
+    if shard and m != B:
+        final, history = jax.tree.map(lambda a: a[:B], (final, history))
+    return final, history
+
+
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
              checkpoint=False, shard=True, allow_short=False):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
@@ -114,8 +134,11 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     the batch across all devices when more than one exists. The members' results equal their
     single runs with the same n_steps (tests).
 
-    A member whose CFL step shrinks during the run may not reach t_end in n_steps: then a
-    RuntimeError names it and the time it reached, unless allow_short (then check final.t)."""
+    A member whose CFL step shrinks during the run may not reach t_end in n_steps. Where ensemble
+    planned n_steps itself, it then runs the batch again with more steps (a RuntimeWarning says
+    how many; up to REPLANS times, where every member got at least half way). Where n_steps was
+    given, or still too few, a RuntimeError names
+    the member and the time it reached, unless allow_short (then check final.t)."""
     from jaxmpm.scenes import initial_state
 
     t_end = scene.t_end if t_end is None else float(t_end)
@@ -134,25 +157,34 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         s = member(state, i) if batched_state else state
         _as_member(i if batched_state else None, check_state, scene, s)
         _as_member(i if batched_state else None, check_t_end, t_end, s.t)
-    if n_steps is None:
+    planned = n_steps is None
+    if planned:
         n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end)
                       for i, p in enumerate(members))
-
-    checkpoint = checkpoint_mode(checkpoint, member(state, 0) if batched_state else state, n_steps, copies=B)
-
-    def one(p, s):
-        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint)
-
     if not batched_state:
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
-    if shard:
-        (params_batch, state), m = _shard((params_batch, state), B)
-    final, history = jit(jax.vmap(one))(params_batch, state)
-    if shard and m != B:
-        final, history = jax.tree.map(lambda a: a[:B], (final, history))
+    final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B)
     from jaxmpm.distributed import to_host
+    t0 = to_host(state.t)
     reached = to_host(final.t)                  # gathered where the batch spans several processes
     short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
+    for _ in range(REPLANS if planned else 0):
+        if not short.size:
+            break
+        # the host's plan fell short (a CFL step that shrank by more than its margin): run the
+        # batch again with the steps the slowest member's average step would need, and 10% more;
+        # not where a member got less than half way (a collapsing step: the error says so)
+        rate = float(np.min((reached[short] - t0[short]) / (t_end - t0[short])))
+        if rate < 0.5:
+            break
+        replanned = int(math.ceil(1.1 * n_steps / rate))
+        warnings.warn(f"{scene.name}: the planned n_steps = {n_steps} reached only t = {reached[short].min():g} s of "
+                      f"t_end = {t_end:g} s (the CFL step shrank during the run): running the batch again with "
+                      f"n_steps = {replanned}; pass n_steps to fix it", RuntimeWarning, stacklevel=2)
+        n_steps = replanned
+        final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B)
+        reached = to_host(final.t)
+        short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
     if short.size and not allow_short:
         raise RuntimeError(f"{scene.name}: member(s) {short.tolist()} reached only t = {reached[short].tolist()} s of "
                            f"t_end = {t_end:g} s in n_steps = {n_steps} (their CFL step shrank during the run): pass a "

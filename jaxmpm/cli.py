@@ -79,14 +79,18 @@ def _check_run_args(args) -> None:
     from jaxmpm.scenes import DEFAULT_SCENE
 
     if args.resume:
-        given = [flag for flag, value in (("a scene", args.scene != DEFAULT_SCENE), ("--t-end", args.t_end is not None),
+        given = [flag for flag, value in (("a scene", args.scene is not None), ("--out", args.out is not None),
+                                          ("--t-end", args.t_end is not None),
                                           ("--n-out", args.n_out is not None), ("--set", bool(args.set)),
                                           ("--opt", bool(args.opt)), ("--debug", args.debug)) if value]
         if given:
             raise ValueError(f"{', '.join(given)} is invalid with --resume: the run continues with the scene, t_end and "
-                             "outputs of its restart file (allowed with --resume: --overwrite, --no-progress, "
+                             "outputs of its restart file, in DIR (allowed with --resume: --overwrite, --no-progress, "
                              "--restart-every, --x64)")
-    elif Path(args.out).exists() and not Path(args.out).is_dir():
+        return
+    args.scene = DEFAULT_SCENE if args.scene is None else args.scene
+    args.out = "out" if args.out is None else args.out
+    if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ValueError(f"--out {args.out} is a file: allowed a folder (new or existing)")
     if args.t_end is not None and not (math.isfinite(args.t_end) and args.t_end > 0):
         raise ValueError(f"--t-end {args.t_end} is invalid: allowed a finite time > 0 s")
@@ -199,9 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a scene and write HDF5 + XDMF + PNG",
                          description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png, and "
                                      "<name>.restart.h5 for --resume.")
-    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
+    run.add_argument("scene", nargs="?", default=None,
                      help=f"built-in scene name (see `jaxmpm scenes`) or a .toml file (default: {DEFAULT_SCENE})")
-    run.add_argument("--out", default="out", help="output folder (default: out)")
+    run.add_argument("--out", default=None, help="output folder (default: out)")
     run.add_argument("--t-end", type=float, help="end time, s (default: the scene's t_end)")
     run.add_argument("--n-out", type=int, help="number of outputs after the initial one (default: the scene's)")
     run.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -223,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(func=cmd_scenes)
 
-    show = sub.add_parser("show", help="summarize an output file (and plot its last output)")
+    show = sub.add_parser("show", help="summarize an output file (and with --png plot its last output)")
     show.add_argument("file", help="an .h5 file written by `jaxmpm run`")
     show.add_argument("--png", help="write a PNG of the last output here")
     show.add_argument("--overwrite", action="store_true", help="replace an existing PNG")

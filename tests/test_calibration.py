@@ -3,6 +3,7 @@ sharding), the debris cloud's C_h sweep, and the gradient of the fit's loss."""
 import dataclasses
 import functools
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -165,6 +166,20 @@ def test_ensemble_names_a_member_that_falls_short_of_t_end():
     batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15])
     with pytest.raises(RuntimeError, match=r"member\(s\) \[0, 1\] reached only t = .* pass a larger n_steps"):
         jaxmpm.ensemble(scene, batch, t_end=3e-7, n_out=1, n_steps=3)
+
+
+def test_ensemble_runs_again_when_its_own_plan_falls_short():
+    """Without n_steps, ensemble plans them from the initial CFL step with a 25% margin; the
+    impact's step shrinks more than that by 3e-7 s (31 planned steps reach 2.976e-7 s). It then
+    runs the batch again with more steps, says so, and every member reaches t_end."""
+    scene, params, _ = _small_cloud()
+    batch = jaxmpm.batch.sweep(params, c_h=[0.1, 0.2])
+    with pytest.warns(RuntimeWarning, match=r"planned n_steps = (\d+) reached only .* running the batch again with n_steps = (\d+)") as rec:
+        final, hist = jaxmpm.ensemble(scene, batch, t_end=3e-7, n_out=2)
+    planned, replanned = (int(k) for k in re.search(r"n_steps = (\d+) reached.* n_steps = (\d+)", str(rec[0].message)).groups())
+    assert replanned > planned
+    np.testing.assert_allclose(np.asarray(final.t), 3e-7, rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(hist.t)[:, -1], 3e-7, rtol=1e-9)
 
 
 @pytest.mark.slow

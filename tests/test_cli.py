@@ -75,9 +75,13 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
     (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
     (["vibrating_bar", "--resume", "somewhere"], ["a scene is invalid with --resume"]),
+    (["elastic_impact", "--resume", "somewhere"], ["a scene is invalid with --resume"]),      # the default, named
+    (["--resume", "somewhere", "--out", "elsewhere"], ["--out is invalid with --resume", "in DIR"]),
+    (["--resume", "somewhere", "--out", "out"], ["--out is invalid with --resume"]),       # the default, named
 ])
 def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
-    assert cli.main(["run", "--out", str(tmp_path), "--no-progress", *argv]) == 2
+    out = [] if "--resume" in argv else ["--out", str(tmp_path)]      # --resume writes into its own DIR
+    assert cli.main(["run", *out, "--no-progress", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "Traceback" not in err
     for w in words:
