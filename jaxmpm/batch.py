@@ -137,8 +137,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     A member whose CFL step shrinks during the run may not reach t_end in n_steps. Where ensemble
     planned n_steps itself, it then runs the batch again with more steps (a RuntimeWarning says
     how many; up to REPLANS times, where every member got at least half way). Where n_steps was
-    given, or still too few, a RuntimeError names
-    the member and the time it reached, unless allow_short (then check final.t)."""
+    given, or still too few, a RuntimeError names the member and the time it reached, unless
+    allow_short (then check final.t)."""
     from jaxmpm.scenes import initial_state
 
     t_end = scene.t_end if t_end is None else float(t_end)

@@ -303,8 +303,8 @@ def seed_update(lay, params, state, dt):
         if lay.n_fields == 1:
             # the nodal parts' cotangent as one array: XLA had fused its computation (about 130
             # operations per node) into the transposed scatter's gather, repeated per particle and
-            # stencil node. One field: gradients 0.93-0.97 of the time before (elastic impact,
-            # Taylor bars, vibrating bar); two fields 1.01-1.07, where the cotangent's computation
+            # stencil node. One field: gradients 0.86-1.00 of the time before (elastic impact,
+            # Taylor bars, 1D bars, interleaved); two fields 1.01-1.07, where the cotangent's computation
             # moved into the DDMP operators' transposes (benchmarks/NOTES.md, Gradients)
             g = tangent_fenced(g, dt > 0)
         acc_p = body_acceleration(lay, params, state)
