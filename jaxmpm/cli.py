@@ -178,6 +178,46 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def cmd_materials(args) -> int:
+    from jaxmpm.materials.library import (USED_TABLES, constant_origins, default_model, known_keys, library_table,
+                                          table_provenance)
+    from jaxmpm.materials.models import model_of
+
+    if args.key is None:
+        width = max(map(len, known_keys()))
+        print(f"{'key':<{width}}  {'default model':<62}  sub-tables it reads that are not yet verified")
+        for key in known_keys():
+            model = default_model(key)
+            origins = constant_origins(key)
+            used = {origins[name][1] for name in model_of(model).constants if name in origins}
+            unverified = [sub for sub, (_, ok) in table_provenance(key).items() if sub in used and not ok]
+            print(f"{key:<{width}}  {model:<62}  {', '.join(unverified) or '-'}")
+        print("\n`jaxmpm materials KEY`: a key's constants with units, sub-tables and sources")
+        return 0
+    origins, prov = constant_origins(args.key), table_provenance(args.key)
+    model = args.model or default_model(args.key)
+    needed = model_of(model).constants
+    print(f"{args.key}: {library_table()[args.key].get('name', '')}")
+    print(f"model: {model}{'  (default)' if model == default_model(args.key) else ''}")
+    print(f"  {'constant':<12}{'value':>14}  {'unit':<10}{'sub-table':<11}verified")
+    tables = []
+    for name, (*_, unit) in needed.items():
+        if name not in origins:
+            print(f"  {name:<12}{'-':>14}  {unit:<10}{'-':<11}not in the library: give it in the material")
+            continue
+        value, sub = origins[name]
+        tables += [sub] if sub not in tables else []
+        print(f"  {name:<12}{value:>14.6g}  {unit:<10}{sub:<11}{'yes' if prov[sub][1] else 'NO'}")
+    print("sources (verified: every number of the sub-table was read in its source):")
+    for sub in tables:
+        source, ok = prov[sub]
+        print(f"  {sub} [{'verified' if ok else 'not verified'}]: {source}")
+    others = [sub for sub in prov if sub not in USED_TABLES]
+    if others:
+        print(f"also in the table, not read by the models (alternative fits): {', '.join(others)}")
+    return 0
+
+
 def cmd_show(args) -> int:
     from jaxmpm import io
 
@@ -226,6 +266,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(func=cmd_scenes)
+
+    materials = sub.add_parser("materials", help="list the material library, or one key's constants and sources",
+                               description="Without KEY: the library's keys, default models and which of the "
+                                           "sub-tables they read await verification. With KEY: every constant of "
+                                           "the model with its unit, the sub-table it is read from, its source and "
+                                           "whether every number of that sub-table was read in that source.")
+    materials.add_argument("key", nargs="?", default=None, help="a library key (e.g. al2024)")
+    materials.add_argument("--model", help="another model kind than the key's default, e.g. hypoelastic")
+    materials.set_defaults(func=cmd_materials)
 
     show = sub.add_parser("show", help="summarize an output file (and with --png plot its last output)")
     show.add_argument("file", help="an .h5 file written by `jaxmpm run`")

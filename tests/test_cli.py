@@ -1,4 +1,4 @@
-"""The `jaxmpm` command: run, scenes, show, refusal to overwrite, errors without tracebacks."""
+"""The `jaxmpm` command: run, scenes, materials, show, refusal to overwrite, errors without tracebacks."""
 import os
 import subprocess
 import sys
@@ -115,6 +115,65 @@ def test_scenes_lists_builtins(capsys):
     for name, b in BUILTINS.items():
         assert name in out and b.summary in out
     assert "elastic_impact" in out
+
+
+def _library_toml():
+    import tomllib
+    from importlib import resources
+
+    return tomllib.loads(resources.files("jaxmpm").joinpath("data/materials.toml").read_text())
+
+
+def _read_from(entry, name):
+    """The sub-table of a library entry that a model's constant is read from (README: the first of
+    eos, elastic, strength, thermal, spall, failure that holds it; tait_n, tait_B from tait; a
+    fluid's K is derived from its eos)."""
+    if name.startswith("tait_"):
+        return "tait"
+    for sub in ("eos", "elastic", "strength", "thermal", "spall", "failure"):
+        if name in entry.get(sub, {}):
+            return sub
+    return "eos" if name == "K" and "elastic" not in entry else None
+
+
+@pytest.mark.parametrize("key, model", [("al2024", None), ("concrete", None), ("water", "tait"), ("steel_4340", "hypoelastic")])
+def test_materials_shows_each_constant_with_its_unit_source_and_verification(key, model, capsys):
+    from jaxmpm.materials import library, model_of
+
+    assert cli.main(["materials", key] + (["--model", model] if model else [])) == 0
+    out = capsys.readouterr().out
+    model = model or library.default_model(key)
+    assert f"model: {model}" in out
+    rows = {line[2:14].strip(): line for line in out.splitlines() if line.startswith("  ") and "[" not in line}
+    entry, values = _library_toml()[key], library.library_constants(key)
+    for name, (*_, unit) in model_of(model).constants.items():
+        row = rows[name]
+        sub = _read_from(entry, name)
+        assert float(row[14:28]) == pytest.approx(values[name], rel=1e-5)
+        assert row[28:].split() == [*unit.split(), sub, "yes" if entry[sub]["verified"] else "NO"]
+        assert f"{sub} [{'verified' if entry[sub]['verified'] else 'not verified'}]: {entry[sub]['source']}" in out
+
+
+def test_materials_lists_each_key_with_the_unverified_tables_its_default_model_reads(capsys):
+    from jaxmpm.materials import known_keys, library, model_of
+
+    assert cli.main(["materials"]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()[1:] if line.strip()}
+    toml = _library_toml()
+    for key in known_keys():
+        model = library.default_model(key)
+        subs = {_read_from(toml[key], name) for name in model_of(model).constants}
+        unverified = [sub for sub, t in toml[key].items() if sub in subs and not t["verified"]]
+        assert lines[key].split()[1] == model
+        assert lines[key].split(None, 2)[2].strip() == (", ".join(unverified) or "-"), key
+
+
+def test_materials_rejects_an_unknown_key_or_model(capsys):
+    assert cli.main(["materials", "unobtainium"]) == 2
+    err = capsys.readouterr().err
+    assert "unobtainium" in err and "al2024" in err and "Traceback" not in err
+    assert cli.main(["materials", "al2024", "--model", "bogus"]) == 2
+    assert "bogus" in capsys.readouterr().err
 
 
 def test_show(saved, tmp_path, capsys):

@@ -113,26 +113,49 @@ def known_keys() -> tuple[str, ...]:
     return tuple(sorted(library_table()))
 
 
-def library_constants(key: str) -> dict[str, float]:
-    """Every constant the library holds for `key`, under the names the model kinds use."""
+# The sub-tables whose numbers the models read, in order of precedence (a name found in an earlier
+# one is taken from it); the table's other sub-tables (alternative fits) are for reference only.
+USED_TABLES = ("eos", "elastic", "strength", "thermal", "spall", "failure", "tait")
+
+
+def _entry(key: str) -> dict:
     table = library_table()
     if key not in table:
         raise ValueError(f"material key {key!r} is unknown: known keys are {list(known_keys())}")
-    entry = table[key]
+    return table[key]
+
+
+def constant_origins(key: str) -> dict[str, tuple[float, str]]:
+    """Every constant the library holds for `key`, under the names the model kinds use, with the
+    sub-table it is read from: name -> (value, sub-table). A value derived from others (a fluid's
+    bulk modulus at rest) names the sub-table of its inputs."""
+    entry = _entry(key)
     eos = entry["eos"]
-    pool: dict[str, float] = {}
-    for sub in ("eos", "elastic", "strength", "thermal", "spall", "failure"):
+    pool: dict[str, tuple[float, str]] = {}
+    for sub in USED_TABLES[:-1]:
         for k, v in entry.get(sub, {}).items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
-                pool.setdefault(k, float(v))
+                pool.setdefault(k, (float(v), sub))
     if "tait" in entry:
-        pool["tait_n"], pool["tait_B"] = float(entry["tait"]["n"]), float(entry["tait"]["B"])
+        pool["tait_n"], pool["tait_B"] = (float(entry["tait"]["n"]), "tait"), (float(entry["tait"]["B"]), "tait")
     if "elastic" not in entry:       # fluids: bulk modulus at rest for linear_fluid
         if eos["model"] == "ideal_gas":
-            pool["K"] = eos["gamma"] * eos["p0"]
+            pool["K"] = (eos["gamma"] * eos["p0"], "eos")
         elif eos["model"] == "stiffened_gas":
-            pool["K"] = eos["gamma"] * (eos["p0"] + eos["p_inf"])
+            pool["K"] = (eos["gamma"] * (eos["p0"] + eos["p_inf"]), "eos")
     return pool
+
+
+def library_constants(key: str) -> dict[str, float]:
+    """Every constant the library holds for `key`, under the names the model kinds use."""
+    return {k: v for k, (v, _) in constant_origins(key).items()}
+
+
+def table_provenance(key: str) -> dict[str, tuple[str, bool]]:
+    """sub-table -> (source, verified) for every sub-table of `key`'s library entry. verified: every
+    number of the sub-table was read in its source; False: at least one awaits that check."""
+    return {sub: (t.get("source", ""), bool(t.get("verified", False)))
+            for sub, t in _entry(key).items() if isinstance(t, dict)}
 
 
 def default_model(key: str) -> str:
