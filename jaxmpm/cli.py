@@ -21,6 +21,7 @@ import inspect
 import math
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -190,7 +191,7 @@ def cmd_materials(args) -> int:
             model = default_model(key)
             origins = constant_origins(key)
             used = {origins[name][1] for name in model_of(model).constants if name in origins}
-            unverified = [sub for sub, (_, ok) in table_provenance(key).items() if sub in used and not ok]
+            unverified = [sub for sub, (_, ok, _) in table_provenance(key).items() if sub in used and not ok]
             print(f"{key:<{width}}  {model:<62}  {', '.join(unverified) or '-'}")
         print("\n`jaxmpm materials KEY`: a key's constants with units, sub-tables and sources")
         return 0
@@ -210,8 +211,11 @@ def cmd_materials(args) -> int:
         print(f"  {name:<12}{value:>14.6g}  {unit:<10}{sub:<11}{'yes' if prov[sub][1] else 'NO'}")
     print("sources (verified: every number of the sub-table was read in its source):")
     for sub in tables:
-        source, ok = prov[sub]
+        source, ok, checks = prov[sub]
         print(f"  {sub} [{'verified' if ok else 'not verified'}]: {source}")
+        if "note" in checks:
+            print(textwrap.fill(f"note ({checks.get('checked', '')}): {' '.join(checks['note'].split())}", 100,
+                                initial_indent="    ", subsequent_indent="    "))
     others = [sub for sub in prov if sub not in USED_TABLES]
     if others:
         print(f"also in the table, not read by the models (alternative fits): {', '.join(others)}")

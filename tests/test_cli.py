@@ -118,10 +118,9 @@ def test_scenes_lists_builtins(capsys):
 
 
 def _library_toml():
-    import tomllib
-    from importlib import resources
+    from jaxmpm.materials.library import library_table
 
-    return tomllib.loads(resources.files("jaxmpm").joinpath("data/materials.toml").read_text())
+    return library_table()
 
 
 def _read_from(entry, name):

@@ -65,6 +65,45 @@ def test_library_keys_and_package_copy_equals_shared():
     assert package.read_text() == shared.read_text()
 
 
+def test_checks_merge_over_the_shared_table_and_name_what_they_change():
+    """data/verification.toml (the project's checks of the shared materials.toml) sets a checked
+    sub-table's status and source, replaces only the numbers it names, and refuses a check of a
+    sub-table or constant the table does not have."""
+    from jaxmpm.materials import library
+
+    raw, checks = library._data("materials.toml"), library._data("verification.toml")
+    merged = library.library_table()
+    for key, subs in checks.items():
+        for sub, check in subs.items():
+            t, before = merged[key][sub], raw[key][sub]
+            assert t["verified"] == check.get("verified", before["verified"])
+            assert t["source"] == check.get("source", before["source"])
+            assert check.get("checked") and (check.get("read") or check.get("derived"))
+            for name, value in before.items():
+                if name not in ("verified", "source"):
+                    assert t[name] == check.get("values", {}).get(name, value), (key, sub, name)
+            if check.get("values"):
+                assert "note" in check, f"{key}.{sub}: a replaced value needs its reason"
+    assert merged["concrete"]["elastic"]["E"] != raw["concrete"]["elastic"]["E"]
+    with pytest.raises(ValueError, match=r"\[al2024.nonesuch\] names no sub-table"):
+        library.merge_checks(library._data("materials.toml"), {"al2024": {"nonesuch": {"verified": True}}})
+    with pytest.raises(ValueError, match=r"values.E0 is not a constant"):
+        library.merge_checks(library._data("materials.toml"), {"al2024": {"elastic": {"values": {"E0": 1.0}}}})
+    with pytest.raises(ValueError, match=r"verifed is unknown"):
+        library.merge_checks(library._data("materials.toml"), {"al2024": {"elastic": {"verifed": True}}})
+
+
+def test_library_elastic_constants_are_one_isotropic_solid_where_the_table_derives_them():
+    """Concrete's four elastic constants describe one isotropic solid (E = 9KG / (3K + G),
+    nu = (3K - 2G) / (2 (3K + G))), so a model reading E and nu (hypoelastic) has the stiffness of
+    the default model, which reads K and G. The shared table's E = 32e9, nu = 0.2 gave K = 17.8e9
+    and G = 13.3e9 against its own 16e9 and 14.86e9."""
+    c = library_material("concrete", "hypoelastic").as_dict()
+    K, G = (library_material("concrete").as_dict()[k] for k in ("K", "G"))
+    assert c["E"] / (3 * (1 - 2 * c["nu"])) == pytest.approx(K, rel=2e-3)
+    assert c["E"] / (2 * (1 + c["nu"])) == pytest.approx(G, rel=2e-3)
+
+
 def test_constants_not_in_si_units_warn():
     """A density past the densest element's, or a wave speed at rest past diamond's (rho0 given
     in g/cm^3: 32x too fast), warns and names the units; real and scaled constants do not."""

@@ -101,11 +101,40 @@ def warn_implausible_units(where: str, model: str, constants: dict) -> None:
                       "With rho0 in g/cm^3 the speed comes out 32x too fast", UserWarning, stacklevel=3)
 
 
+CHECK_FIELDS = ("checked", "read", "derived", "note")
+
+
+def _data(name: str) -> dict:
+    return tomllib.loads(resources.files("jaxmpm").joinpath(f"data/{name}").read_text())
+
+
+def merge_checks(table: dict, checks: dict) -> dict:
+    """materials.toml's table with the project's checks (verification.toml) merged over it: a checked
+    sub-table takes the check's `verified`, `source` and replaced `values`, and keeps the rest of the
+    check under "checks". A check must name an existing sub-table and constants."""
+    for key, subs in checks.items():
+        for sub, check in subs.items():
+            where = f"verification.toml [{key}.{sub}]"
+            if sub not in table.get(key, {}) or not isinstance(table[key][sub], dict):
+                raise ValueError(f"{where} names no sub-table of materials.toml")
+            unknown = sorted(set(check) - {"verified", "source", "values", *CHECK_FIELDS})
+            if unknown:
+                raise ValueError(f"{where}.{unknown[0]} is unknown: allowed verified, source, values, {', '.join(CHECK_FIELDS)}")
+            t = table[key][sub]
+            for name, value in check.get("values", {}).items():
+                if name not in t:
+                    raise ValueError(f"{where}.values.{name} is not a constant of materials.toml's [{key}.{sub}]")
+                t[name] = value
+            t.update({k: check[k] for k in ("verified", "source") if k in check})
+            t["checks"] = {k: check[k] for k in CHECK_FIELDS if k in check}
+    return table
+
+
 @functools.lru_cache(maxsize=1)
 def library_table() -> dict:
-    """The package's materials.toml as a dict (constants with their sources)."""
-    text = resources.files("jaxmpm").joinpath("data/materials.toml").read_text()
-    return tomllib.loads(text)
+    """The package's materials.toml (the shared table: constants with their sources) with the
+    project's checks of it (data/verification.toml) merged over it (`merge_checks`)."""
+    return merge_checks(_data("materials.toml"), _data("verification.toml"))
 
 
 def known_keys() -> tuple[str, ...]:
@@ -151,10 +180,12 @@ def library_constants(key: str) -> dict[str, float]:
     return {k: v for k, (v, _) in constant_origins(key).items()}
 
 
-def table_provenance(key: str) -> dict[str, tuple[str, bool]]:
-    """sub-table -> (source, verified) for every sub-table of `key`'s library entry. verified: every
-    number of the sub-table was read in its source; False: at least one awaits that check."""
-    return {sub: (t.get("source", ""), bool(t.get("verified", False)))
+def table_provenance(key: str) -> dict[str, tuple[str, bool, dict]]:
+    """sub-table -> (source, verified, checks) for every sub-table of `key`'s library entry. verified:
+    every number of the sub-table was read in its source (a derived one's arithmetic checked); False:
+    at least one awaits that check. checks: the project's record of its check (data/verification.toml:
+    checked, read, derived, note), {} where there is none."""
+    return {sub: (t.get("source", ""), bool(t.get("verified", False)), t.get("checks", {}))
             for sub, t in _entry(key).items() if isinstance(t, dict)}
 
 
