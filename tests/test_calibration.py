@@ -64,7 +64,7 @@ def test_ensemble_equals_the_single_runs():
     for i in range(4):
         f1, h1 = jaxmpm.simulate(scene, jaxmpm.batch.member(batch, i), s0, t_end=3e-7, n_out=2, n_steps=n)
         for a, b in zip(jax.tree.leaves(jaxmpm.batch.member((final, hist), i)), jax.tree.leaves((f1, h1))):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-5, atol=1e-6 * float(np.max(np.abs(b)) + 1e-30))
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b)) + 1e-30))
     # the members differ (the sweep is not a broadcast of one)
     assert float(jnp.max(jnp.abs(final.v[0] - final.v[3]))) > 1.0
 

@@ -14,7 +14,7 @@ from jaxmpm.materials.library import library_table
 from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
 from jaxmpm.state import phase_slices
 
-from riemann import sample
+from riemann import sample, star_state
 
 
 # ------------------------------------------------------------------------- single particle
@@ -271,11 +271,32 @@ def sod_error(cells):
     return np.sum(V * np.abs(rho - exact)) / np.sum(V * exact)
 
 
+@pytest.mark.parametrize("left, right, p_star, u_star, rho_l, rho_r", [
+    ((1.0, 0.0, 1.0), (0.125, 0.0, 0.1), 0.30313, 0.92745, 0.42632, 0.26557),        # Toro's test 1 (Sod)
+    ((1.0, -2.0, 0.4), (1.0, 2.0, 0.4), 0.00189, 0.0, 0.02185, 0.02185),             # test 2 (123 problem)
+    ((1.0, 0.0, 1000.0), (1.0, 0.0, 0.01), 460.894, 19.5975, 0.57506, 5.99924),      # test 3
+])
+def test_the_exact_riemann_solver_reproduces_toros_star_states(left, right, p_star, u_star, rho_l, rho_r):
+    """The reference of the Sod test (tests/riemann.py) against Toro's table of exact star states
+    (Riemann Solvers and Numerical Methods for Fluid Dynamics, 3rd ed., Table 4.3: gamma = 1.4,
+    five or six significant digits)."""
+    digits = 3e-3 if p_star < 0.01 else 1e-4
+    p, u = star_state(left, right, 1.4)
+    assert p == pytest.approx(p_star, rel=digits)
+    assert u == pytest.approx(u_star, rel=1e-4, abs=1e-10)
+    x = 0.5 + np.array([u - 1e-3, u + 1e-3]) * 0.1      # either side of the contact at t = 0.1
+    rho = sample(x, 0.1, 0.5, left, right, 1.4)[0]
+    np.testing.assert_allclose(rho, [rho_l, rho_r], rtol=digits)
+
+
 def test_sod_shock_tube_converges_to_the_exact_riemann_solution():
+    """Density's relative L1 error at 200, 400, 800 cells: order >= 0.6 (a shock's error is first
+    order at best; measured about 0.75) and below 0.5% at 800 cells (measured 0.27%; exact
+    solutions with gamma 1.5 and 1.4 differ by 1.9%)."""
     errors = [sod_error(n) for n in (200, 400, 800)]
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert orders.mean() >= 0.6, (errors, orders)
-    assert errors[-1] < 0.03, errors
+    assert errors[-1] < 0.005, errors
 
 
 def flyer_plate(key, v0=2000.0, cells=400, model=None, t_end=2.5e-6):
@@ -290,25 +311,42 @@ def flyer_plate(key, v0=2000.0, cells=400, model=None, t_end=2.5e-6):
     return scene, s0, final, hist
 
 
-@pytest.mark.parametrize("key", ["al2024", "steel_4340", "tungsten_wha"])
+@pytest.mark.parametrize("key", ["al2024", "al6061", "steel_4340", "copper_ofhc", "tungsten_wha"])
 def test_planar_impact_reproduces_the_hugoniot(key):
-    """Target particle velocity v/2 and shock speed c0 + s up within 3% (library model: Mie-Grueneisen,
-    Johnson-Cook, spall and failure, with artificial viscosity)."""
+    """A 2 km/s symmetric impact of each library metal (its full model: Mie-Grueneisen, Johnson-Cook,
+    spall and failure, with artificial viscosity). The EOS: the shock speed within 1% of the
+    Hugoniot c0 + s up at up = v/2 (1% of Us is 5% of s; measured 0.04-0.46%). The jump conditions
+    across the measured shock (Us, up), which hold for any material: the shocked density
+    rho0 Us / (Us - up) within 0.5% (measured <= 0.19%), the axial stress -sigma_xx = rho0 Us up
+    within 1% (<= 0.45%) and, in the half of the plateau nearer the front, the specific internal
+    energy up^2 / 2 within 1% (<= 0.4%; the half nearer the impact face holds the start-up's excess
+    heating, 9% in its first quarter at 400 cells, 4.7% at 800)."""
     v0 = 2000.0
     scene, _, _, hist = flyer_plate(key, v0)
     eos = library_table()[key]["eos"]
-    up = v0 / 2
+    rho0, up = eos["rho0"], v0 / 2
     Us = eos["c0"] + eos["s"] * up
     sl = phase_slices(scene)[1]
-    t, fronts, speeds = np.asarray(hist.t), [], []
+    t, fronts, speeds, plateau = np.asarray(hist.t), [], [], []
     for k in range(1, len(t)):
         x, P, v = (np.asarray(a[k, sl]) for a in (hist.x[..., 0], hist.pressure, hist.v[..., 0]))
-        front = x[P > 0.5 * eos["rho0"] * Us * up].max()
+        front = x[P > 0.5 * rho0 * Us * up].max()
         fronts.append(front)
-        behind = (x > 0.02 + up * t[k] + 1e-3) & (x < front - 1e-3)
+        back = 0.02 + up * t[k]
+        behind = (x > back + 1e-3) & (x < front - 1e-3)
         speeds.append(v[behind].mean())
-    assert np.polyfit(t[1:], fronts, 1)[0] == pytest.approx(Us, rel=0.03)
-    np.testing.assert_allclose(speeds[1:], up, rtol=0.03)      # once the plateau is >= 4 mm long
+        if k >= 2:      # once the plateau is >= 4 mm long
+            rho = np.asarray(hist.mass[k, sl] / hist.volume[k, sl])
+            near_front = behind & (x > 0.5 * (back + front))
+            plateau.append((rho[behind].mean(), -np.asarray(hist.stress[k, sl, 0, 0])[behind].mean(),
+                            np.asarray(hist.energy[k, sl])[near_front].mean()))
+    Us_m, up_m = np.polyfit(t[1:], fronts, 1)[0], np.mean(speeds[1:])
+    assert Us_m == pytest.approx(Us, rel=0.01)
+    np.testing.assert_allclose(speeds[1:], up, rtol=0.01)
+    rho, sxx, e = np.mean(plateau, axis=0)
+    assert rho == pytest.approx(rho0 * Us_m / (Us_m - up_m), rel=0.005)      # mass
+    assert sxx == pytest.approx(rho0 * Us_m * up_m, rel=0.01)                # momentum
+    assert e == pytest.approx(0.5 * up_m**2, rel=0.01)                       # energy
 
 
 def energy(s):

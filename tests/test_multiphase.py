@@ -430,17 +430,19 @@ def push_water(continuity, shape):
     return out[False], out[True]
 
 
-@pytest.mark.parametrize("continuity,shape", [("transport", "ddmp"), ("transport", "linear"), ("off", "linear")])
-def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(continuity, shape):
+@pytest.mark.parametrize("continuity,shape,tol", [("transport", "ddmp", 0.005), ("transport", "linear", 0.005),
+                                                   ("off", "linear", 0.02)])
+def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(continuity, shape, tol):
     """10 kPa of gas pushes 0.2 m of water for 4 ms (3.4 gas transit times). The water's momentum
-    within 10% of the one-field run at every output (measured with DDMP and the continuity form:
-    0.04% at the end), and the gas within 5 cells of the interface no faster than 2x the one-field
-    run's (0.24 against 0.28 m/s)."""
+    at every output within `tol` of the one-field run's largest (PHYSICS 2.1: 0.5%; measured 0.04%
+    with DDMP and the continuity form, 0.0002% with linear shapes; 1.2% with E15's fitted
+    pressures, continuity = 'off'), and the gas within 5 cells of the interface no faster than 2x
+    the one-field run's (0.24 against 0.28 m/s)."""
     one, two = push_water(continuity, shape)
     print(f"water momentum ratio {two['p'][-1] / one['p'][-1]:.4f}; gas peak near the interface "
           f"{two['gas']:.3f} vs {one['gas']:.3f} m/s")
     assert one["p"][-1] > 30.0                                  # the water was pushed (about 37 N s / m^2)
-    np.testing.assert_allclose(two["p"], one["p"], rtol=0, atol=0.10 * np.abs(one["p"]).max())
+    np.testing.assert_allclose(two["p"], one["p"], rtol=0, atol=tol * np.abs(one["p"]).max())
     assert two["gas"] < 2 * one["gas"]
 
 

@@ -43,12 +43,13 @@ def test_tate_speed_solves_the_interface_stress_balance_and_has_the_hydrodynamic
 def test_coarse_penetration_conserves_mass_and_axial_momentum_before_the_back_wall_is_reached(fields):
     """Resolution 0.5, 12 us, rod and target in one velocity field or in two (coupled by the
     common pressure and drag): the stress wave (about 6 km/s) has not reached the slip wall 105 mm
-    below the target's face, and the slip walls on the outer radius and the top take no axial
-    momentum, so mass is exact and axial momentum conserved within 1%."""
+    below the target's face, and the slip walls on the outer radius and the top take almost no axial
+    momentum, so mass is exact and axial momentum conserved within 1e-5 (measured: 2.0e-7 in one
+    field, 1.8e-7 in two; a coupling that lost 0.1% of the rod's momentum would fail)."""
     scene, s0, final, _ = run(0.5, t_end=12e-6, fields=fields)
     assert all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(final))
     assert float(final.mass.sum()) == float(s0.mass.sum())
-    assert momentum_z(final) == pytest.approx(momentum_z(s0), rel=0.01)
+    assert momentum_z(final) == pytest.approx(momentum_z(s0), rel=1e-5)
     rod = phase_slices(scene)[0]
     assert float(final.x[rod, 1].min()) < -8e-3          # it is penetrating: more than a diameter deep
 
@@ -63,19 +64,20 @@ def test_one_and_two_velocity_fields_differ_where_rod_and_target_meet():
     assert b["tail_speed"] == pytest.approx(a["tail_speed"], rel=1e-3)
 
 
-def test_steady_penetration_rate_within_15_percent_of_tate():
+def test_steady_penetration_rate_within_5_percent_of_tate():
     """Resolution 0.5, 45 us (about 60% of the rod eroded): the slope of depth against time over
     the last 70% of the run against Tate's U at the measured tail speed (Y_p = 1.67 GPa,
-    R_t = 4.75 GPa). Measured 1030 against 1047 m/s (resolution 1: 1072 against 1048 m/s);
-    the rod erodes at v - U and its tail decelerates by Y_p / (rho_p L) as Tate's model has it."""
+    R_t = 4.75 GPa). Measured 1030 against 1047 m/s, 1.6% (resolution 1: 1072 against 1048 m/s,
+    2.3%); a target resistance R_t off by 50% moves Tate's U by about 9%. The rod erodes at v - U
+    (measured within 0.1%) and its tail decelerates by Y_p / (rho_p L) as Tate's model has it."""
     scene, _, _, history = run(0.5)
     u, u_tate = steady_penetration_rate(scene, history)
     print(f"rod_penetration: U = {u:.0f} m/s, Tate {u_tate:.0f} m/s")
-    assert u == pytest.approx(u_tate, rel=0.15)
+    assert u == pytest.approx(u_tate, rel=0.05)
     m = penetration_history(scene, history)
     late = m["t"] > 0.3 * m["t"][-1]
     erosion = -np.polyfit(m["t"][late], m["rod_length"][late], 1)[0]
-    assert erosion == pytest.approx(m["tail_speed"][late].mean() - u, rel=0.15)
+    assert erosion == pytest.approx(m["tail_speed"][late].mean() - u, rel=0.02)
     assert 0 < m["tail_speed"][0] - m["tail_speed"][-1] < 0.1 * m["tail_speed"][0]   # slowed, a little
     assert tate_strengths() == pytest.approx((1.669e9, 4.747e9), rel=1e-3)
 

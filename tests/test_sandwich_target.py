@@ -22,7 +22,7 @@ def test_coarse_sandwich_conserves_mass_and_momentum_and_slows_the_rod():
     pz = lambda s: float((s.mass * s.v[:, 1]).sum())
     assert pz(final) == pytest.approx(pz(s0), rel=1e-9)
     energy = lambda s: float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
-    assert energy(final) == pytest.approx(energy(s0), rel=0.01)
+    assert energy(s0) * (1 - 0.01) < energy(final) < energy(s0) * (1 + 1e-3)   # measured -0.1%: never a gain
     rod, sheets = phase_slices(scene)[0], phase_slices(scene)[2]
     v_rod = float((final.mass[rod] * final.v[rod, 1]).sum() / final.mass[rod].sum())
     assert -750.0 < v_rod < -400.0
@@ -58,7 +58,7 @@ def test_sandwich_in_two_and_three_fields_keeps_momentum_and_energy(fields):
     assert pz(final) == pytest.approx(pz(s0), rel=1e-9)
     energy = lambda s: float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
     print(f"{fields} fields: energy {energy(final) / energy(s0) - 1:+.4f}")
-    assert energy(final) == pytest.approx(energy(s0), rel=0.06)
+    assert energy(s0) * (1 - 0.06) < energy(final) < energy(s0) * (1 + 1e-3)   # dissipated, never gained
     rod = phase_slices(scene)[0]
     v_rod = float((final.mass[rod] * final.v[rod, 1]).sum() / final.mass[rod].sum())
     assert -750.0 < v_rod < -400.0
