@@ -141,7 +141,9 @@ def test_a_phase_with_zero_volume_fraction_at_nodes():
 def test_drag_with_dt_k_over_m_of_1e6():
     """A steel slug (field 0) moving at 50 m/s through a water-like mixture (field 1, half the
     volume) with C_d so large that dt K / m >= 1e6 at the CFL step: the implicit exchange locks the
-    fields together without overshoot; energy only falls (drag dissipates)."""
+    fields together (that it does so without overshoot, at any dt K / m, is tested on the exact
+    two-field relaxation in test_multiphase); the run stays finite with a finite gradient, and its
+    energy only falls (drag dissipates; measured -9.6%)."""
     water = jaxmpm.Material.make("water", "linear_fluid", rho0=1000.0, K=2.2e9)
     scene = Scene(grid=Grid(cells=(24, 12), h=1e-3), materials=(STEEL, water), boundary=WALLS,
                   phases=(Phase("slug", "steel", Box((0.004, 0.004), (0.010, 0.008)), velocity=(50.0, 0.0), field=0),
@@ -155,5 +157,6 @@ def test_drag_with_dt_k_over_m_of_1e6():
     K_over_m = float(params.drag_coefficient) * theta * 50.0 / float(params.drag_length)
     assert dt * K_over_m >= 1e6
     n = jaxmpm.plan_steps(scene, params, s0, scene.t_end)
-    e0, e1, _ = check(scene, params, s0, n, jnp.asarray(1e12), lambda p, s, c: (dataclasses.replace(p, drag_coefficient=c), s))
+    e0, e1, _ = check(scene, params, s0, n, jnp.asarray(1e12), lambda p, s, c: (dataclasses.replace(p, drag_coefficient=c), s),
+                      tol=0.0)
     print(f"stiff drag: dt K / m = {dt * K_over_m:.2e}, energy {e1 / e0 - 1:+.3%}")

@@ -6,6 +6,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -79,6 +80,46 @@ def test_malformed_scene_dict_gives_a_value_error_naming_a_field(path, value, ac
     except ValueError as e:
         assert any(w in str(e) for w in FIELD_WORDS), str(e)
     # a mutation that still describes a valid scene may build: that is fine too
+
+
+REQUIRED = [("grid",), ("grid", "cells"), ("grid", "h"), ("materials",), ("materials", "m", "rho0"),
+            ("materials", "m", "E"), ("materials", "m", "model"), ("phase",), ("phase", 0, "material"),
+            ("phase", 0, "geometry"), ("phase", 0, "geometry", "lo")]
+NUMERIC = [("grid", "h"), ("grid", "cells"), ("materials", "m", "rho0"), ("materials", "m", "E"), ("materials", "m", "nu"),
+           ("t_end",), ("phase", 0, "velocity"), ("phase", 0, "geometry", "lo"), ("effects", "gravity")]
+
+
+@pytest.mark.parametrize("path", REQUIRED, ids=lambda p: ".".join(map(str, p)))
+def test_a_scene_dict_missing_a_required_entry_is_refused_naming_it(path):
+    """The oracle the random mutations above lack: these deletions can never describe a scene."""
+    d = copy.deepcopy(BASE)
+    _delete(d, path)
+    with pytest.raises(ValueError, match="material" if path == ("materials",) else str(path[-1])):
+        scene_from_dict(d)
+
+
+@pytest.mark.parametrize("path", NUMERIC, ids=lambda p: ".".join(map(str, p)))
+@pytest.mark.parametrize("value", ["abc", None, {"a": 1}, True], ids=["text", "none", "table", "bool"])
+def test_a_scene_dict_with_a_non_number_where_a_number_belongs_is_refused(path, value):
+    if value is None and path[-1] in ("velocity", "gravity"):
+        pytest.skip("None is an optional entry left out (TOML has no null)")
+    d = copy.deepcopy(BASE)
+    _set(d, path, value)
+    with pytest.raises(ValueError, match=str(path[-1])):
+        scene_from_dict(d)
+
+
+@pytest.mark.parametrize("path", [p for p in PATHS if isinstance(p[-1], str) and p[-1] != "effects"] + [()], ids=lambda p: ".".join(map(str, p)) or "top")
+def test_an_unknown_key_anywhere_in_a_scene_dict_is_refused_naming_it(path):
+    d = copy.deepcopy(BASE)
+    node = d
+    for p in path:
+        node = node[p]
+    if not isinstance(node, dict):
+        pytest.skip("not a table")
+    node["unexpected_key"] = 1.0
+    with pytest.raises(ValueError, match="unexpected_key"):
+        scene_from_dict(d)
 
 
 @settings(max_examples=200, deadline=None)
