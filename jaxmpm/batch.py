@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxmpm.compile import jit
 from jaxmpm.params import Params, check_params
-from jaxmpm.simulate import check_t_end, checkpoint_mode, count, plan_steps, simulate
+from jaxmpm.simulate import check_t_end, checkpoint_mode, count, plan_steps, seconds, simulate
 from jaxmpm.state import check_state
 
 
@@ -46,7 +46,13 @@ def stack(items):
 
 
 def member(batch, i: int):
-    """The i-th member of a batched pytree."""
+    """The i-th member of a batched pytree (i in [-B, B) for a batch of B; an IndexError outside,
+    where indexing an array would clamp silently)."""
+    if not isinstance(i, (int, np.integer)) or isinstance(i, bool):
+        raise TypeError(f"member index {i!r} is invalid: allowed an integer")
+    sizes = {int(np.shape(a)[0]) for a in jax.tree.leaves(batch) if np.ndim(a)}
+    if sizes and not -min(sizes) <= i < min(sizes):
+        raise IndexError(f"member {i} is out of range: allowed -{min(sizes)} <= i < {min(sizes)} (the batch size)")
     return jax.tree.map(lambda a: a[i], batch)
 
 
@@ -141,7 +147,7 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     allow_short (then check final.t)."""
     from jaxmpm.scenes import initial_state
 
-    t_end = scene.t_end if t_end is None else float(t_end)
+    t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)
     B = batch_size(params_batch)

@@ -67,10 +67,19 @@ def _check_option_type(name: str, value, default) -> None:
         raise ValueError(f"--opt {name}={value!r} is invalid: allowed a name (default {default!r})")
 
 
-def _resume_file(folder: str) -> Path:
-    files = sorted(Path(folder).glob("*.restart.h5"))
+def _resume_file(where: str) -> Path:
+    """The restart file --resume names: a *.restart.h5 file, or a folder holding exactly one."""
+    path = Path(where)
+    if path.is_file():
+        if not path.name.endswith(".restart.h5"):
+            raise ValueError(f"--resume {where!r} is invalid: allowed a folder with one *.restart.h5 file, or such a file")
+        return path
+    if not path.is_dir():
+        raise ValueError(f"--resume {where!r} does not exist: allowed a folder with one *.restart.h5 file, or such a file")
+    files = sorted(path.glob("*.restart.h5"))
     if len(files) != 1:
-        raise ValueError(f"--resume {folder!r}: expected one *.restart.h5 file there, found {[f.name for f in files]}")
+        raise ValueError(f"--resume {where!r}: expected one *.restart.h5 file there, found {[f.name for f in files]}"
+                         + (f" (name one: --resume {path / files[0].name})" if files else ""))
     return files[0]
 
 
@@ -118,7 +127,7 @@ def cmd_run(args) -> int:
         raise ValueError(f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)")
     if args.resume:
         scene = restart.load(path)["scene"]
-        out = Path(args.resume)
+        out = path.parent
     else:
         scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
         out = Path(args.out)
@@ -127,12 +136,20 @@ def cmd_run(args) -> int:
     h5, png = out / f"{scene.name}.h5", out / f"{scene.name}.png"
     xdmf = io.xdmf_path(h5)
     rfile = out / f"{scene.name}.restart.h5"
+    if not args.resume and not args.overwrite and rfile.is_file() and not h5.exists():
+        raise FileExistsError(f"{rfile} exists: a run of {scene.name} into {out} was interrupted; continue it with "
+                              f"`jaxmpm run --resume {out}`, or pass --overwrite to start again (which discards it)")
     io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
     if args.resume:
         print(f"resuming {scene.name} from {path}", flush=True)
-        scene, params, final, history = restart.resume(path, progress=not args.no_progress,
-                                                       restart_every=args.restart_every)
+        try:
+            scene, params, final, history = restart.resume(path, progress=not args.no_progress,
+                                                           restart_every=args.restart_every)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted: {path} holds the progress it saved last: continue with "
+                  f"`jaxmpm run --resume {path}`", file=sys.stderr)
+            return 130
         start = diagnostics.summary(scene, params, jax.tree.map(lambda a: None if a is None else a[0], history))
     else:
         t_end = scene.t_end if args.t_end is None else args.t_end
@@ -146,10 +163,17 @@ def cmd_run(args) -> int:
         itemsize = state.x.dtype.itemsize
         io.check_space(out, io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
                        + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0))
-        final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out, progress=not args.no_progress,
-                                         restart_file=str(rfile) if args.restart_every else None,
-                                         restart_every=args.restart_every or 1, debug=args.debug,
-                                         overwrite=args.overwrite)
+        try:
+            final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out,
+                                             progress=not args.no_progress,
+                                             restart_file=str(rfile) if args.restart_every else None,
+                                             restart_every=args.restart_every or 1, debug=args.debug,
+                                             overwrite=args.overwrite)
+        except KeyboardInterrupt:
+            saved = (f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
+                     if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
+            print(f"\ninterrupted: {saved}", file=sys.stderr)
+            return 130
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
@@ -265,7 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--restart-every", type=int, default=20, metavar="N",
                      help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
     run.add_argument("--resume", metavar="DIR",
-                     help="continue the run whose restart file is in DIR (bit-identical to an uninterrupted run)")
+                     help="continue the run whose restart file is in DIR, or the one named (DIR/NAME.restart.h5: "
+                          "where DIR holds several); bit-identical to an uninterrupted run")
     run.set_defaults(func=cmd_run)
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")

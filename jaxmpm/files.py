@@ -26,17 +26,35 @@ def check_space(folder, needed: int) -> None:
 
 def check_new(*paths, overwrite: bool = False) -> None:
     """Raise FileExistsError naming the first of `paths` that exists, unless overwrite; and, even
-    with overwrite, the first that is a directory (a file never replaces a directory)."""
+    with overwrite, the first that is a directory (a file never replaces a directory). Then make
+    sure each path's folder exists and can be written (`check_writable`), so that a run finds out
+    before it computes anything, not when it saves its result."""
     for p in paths:
         if os.path.isdir(p):
             raise FileExistsError(f"{os.fspath(p)} is a directory: refusing to replace it with a file "
                                   "(allowed a file name; move or remove the directory)")
-    if overwrite:
-        return
-    for p in paths:
-        if os.path.lexists(p):
-            raise FileExistsError(f"{os.fspath(p)} exists: refusing to overwrite it "
-                                  "(pass overwrite=True, or --overwrite on the command line)")
+    if not overwrite:
+        for p in paths:
+            if os.path.lexists(p):
+                raise FileExistsError(f"{os.fspath(p)} exists: refusing to overwrite it "
+                                      "(pass overwrite=True, or --overwrite on the command line)")
+    check_writable(*paths)
+
+
+def check_writable(*paths) -> None:
+    """Create each path's folder if needed and write (then delete) a probe file there; OSError
+    naming the folder and the reason where that fails (no permission, read-only disk, a file in
+    the way)."""
+    for path in {Path(p).parent: Path(p) for p in reversed(paths)}.values():
+        _make_parent(path)
+        folder = path.parent
+        probe = folder / f".jaxmpm-write-probe.{uuid.uuid4().hex[:12]}"
+        try:
+            os.close(os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        except OSError as e:
+            raise OSError(f"cannot write in {os.fspath(folder)}: {e.strerror or e} "
+                          "(allowed a folder this user can write to)") from None
+        os.unlink(probe)
 
 
 def _make_parent(path: Path) -> None:
@@ -48,6 +66,9 @@ def _make_parent(path: Path) -> None:
         block = next((q for q in reversed(path.parents) if os.path.lexists(q) and not q.is_dir()), path.parent)
         raise FileExistsError(f"cannot write {os.fspath(path)}: {os.fspath(block)} is a file, not a folder "
                               "(allowed a path whose folders are folders or do not exist yet)") from None
+    except OSError as e:
+        raise OSError(f"cannot create the folder {os.fspath(path.parent)}: {e.strerror or e} "
+                      "(allowed a folder this user can create and write to)") from None
 
 
 @contextlib.contextmanager

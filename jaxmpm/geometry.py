@@ -20,6 +20,11 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
+def _is_integer(v: Any) -> bool:
+    """An integer (Python or NumPy), not a bool."""
+    return isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_))
+
+
 def _floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
     """A list of finite numbers (n of them, one per axis, where n is given) as floats. A string is
     not a list of numbers (it would be read digit by digit)."""
@@ -181,15 +186,15 @@ class Grid:
 
     def __post_init__(self):
         cells = self.cells
-        if isinstance(cells, int):
+        if _is_integer(cells):
             cells = (cells,)
         try:
-            ok = all(isinstance(c, int) and not isinstance(c, bool) for c in cells)
+            ok = not isinstance(cells, (str, bytes)) and all(_is_integer(c) for c in cells)
         except TypeError:
             ok = False
         if not ok or not 1 <= len(tuple(cells)) <= 3:
             _fail("grid.cells", self.cells, "a list of 1 to 3 integers")
-        cells = tuple(cells)
+        cells = tuple(int(c) for c in cells)
         for d, c in enumerate(cells):
             if c < 2:
                 _fail(f"grid.cells[{d}]", c, ">= 2")

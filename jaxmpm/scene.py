@@ -19,7 +19,7 @@ from typing import Any
 
 # the geometry lives in jaxmpm.geometry; its names stay importable from here
 from jaxmpm.geometry import (GEOMETRIES, Box as Box, Difference as Difference, Grid as Grid, Sphere as Sphere,
-                             _fail, _float, _floats, geometry_from_dict as geometry_from_dict)
+                             _fail, _float, _floats, _is_integer, geometry_from_dict as geometry_from_dict)
 from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of
 
@@ -57,10 +57,12 @@ class Phase:
         dim = len(self.geometry.lo)
         v = (0.0,) * dim if self.velocity is None else self.velocity
         object.__setattr__(self, "velocity", _floats(f"phase.{self.name}.velocity", v, dim))
-        if not isinstance(self.field, int) or isinstance(self.field, bool) or self.field < 0:
+        if not _is_integer(self.field) or self.field < 0:
             _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
-        if not isinstance(self.ppc, int) or isinstance(self.ppc, bool) or not 1 <= self.ppc <= 8:
+        if not _is_integer(self.ppc) or not 1 <= self.ppc <= 8:
             _fail(f"phase.{self.name}.ppc", self.ppc, "an integer in [1, 8]")
+        object.__setattr__(self, "field", int(self.field))
+        object.__setattr__(self, "ppc", int(self.ppc))
         frac = _float(f"phase.{self.name}.fraction", self.fraction)
         if not 0 < frac <= 1:
             _fail(f"phase.{self.name}.fraction", frac, "(0, 1]")
@@ -220,8 +222,13 @@ class Scene:
         for k in keys:
             if keys.count(k) > 1:
                 _fail("materials", k, "unique material keys")
+        by_key = {m.key: ("materials", m) for m in self.materials}
         for p in phases:  # resolves now: an unknown key fails here, listing the known ones
-            resolve_material(p.material, self.materials, f"phase.{p.name}.material")
+            m = resolve_material(p.material, self.materials, f"phase.{p.name}.material")
+            where, other = by_key.setdefault(m.key, (f"phase.{p.name}", m))
+            if other != m:   # a scene file (and every output's /scene) names a material by its key alone
+                _fail(f"phase.{p.name}.material", m.key,
+                      f"one material per key: {where} has another material of key {m.key!r} (rename one)")
         if self.shape not in SHAPES:
             _fail("shape", self.shape, " | ".join(SHAPES))
         if self.transfer not in TRANSFERS:
@@ -279,14 +286,14 @@ class Scene:
         if self.window is not None:
             w = self.window
             ok = (isinstance(w, (tuple, list)) and len(w) == dim
-                  and all(isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= n for c, n in zip(w, self.grid.cells)))
+                  and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells)))
             if not ok:
                 _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
-            object.__setattr__(self, "window", tuple(w))
+            object.__setattr__(self, "window", tuple(int(c) for c in w))
         if not isinstance(self.interface_forces, bool):
             try:
                 sub = tuple(sorted(set(int(k) for k in self.interface_forces)))
-                ok = all(isinstance(k, int) and not isinstance(k, bool) for k in self.interface_forces)
+                ok = all(_is_integer(k) for k in self.interface_forces)
             except (TypeError, ValueError):
                 ok = False
             if not ok or len(sub) < 2 or not all(0 <= k < self.n_fields for k in sub):

@@ -55,14 +55,39 @@ def check_t_end(t_end, t0) -> float:
     return t_end
 
 
+def seconds(name: str, value) -> float:
+    """A time argument (s) as a float; ValueError naming it where it is not a number."""
+    if isinstance(value, bool):
+        value = None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {value!r} is invalid: allowed a number of seconds") from None
+
+
+def host_cfl_step(scene, params, state, cfl=None, checked=False) -> float:
+    """cfl_time_step (s) at `state` as a float, outside jit: params and state checked first (unless
+    `checked`), and a ValueError where the step is not a finite time > 0 (a speed that overflows
+    the dtype, or a wave speed that is not finite), instead of a plan of zero or infinite steps."""
+    if not checked:
+        check_params(scene, params)
+        check_state(scene, state)
+    dt = float(cfl_time_step(scene, params, state, cfl))
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"the CFL time step at t = {float(state.t):g} s is {dt!r}: allowed a finite time > 0 s; a "
+                         f"particle or wave speed is not finite or too large for {np.asarray(state.v).dtype} (largest "
+                         f"velocity component: {float(np.abs(np.asarray(state.v)).max()):g} m/s; h = {scene.grid.h:g} m)")
+    return dt
+
+
 def cfl_limit(scene, params, state) -> float:
     """The largest stable dt (s) at `state` for CFL = 1: h / max_p (c_p + |v_p|)."""
-    return float(cfl_time_step(scene, params, state, cfl=1.0))
+    return host_cfl_step(scene, params, state, cfl=1.0)
 
 
 def check_dt(scene, params, state, dt) -> None:
     """ValueError if a user-given dt exceeds the CFL limit params.cfl * h / max(c + |v|)."""
-    limit = float(cfl_time_step(scene, params, state))
+    limit = host_cfl_step(scene, params, state, checked=True)
     if not dt > 0:
         raise ValueError(f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})")
     if dt > limit * (1 + 1e-12):
@@ -74,11 +99,18 @@ def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """Number of scan steps that reach t_end: (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run. Call it outside jit/grad/vmap and pass it as `n_steps`."""
     span = check_t_end(t_end, state.t) - float(state.t)
+    check_params(scene, params)
+    check_state(scene, state)
     if dt is not None:
-        if not (math.isfinite(float(dt)) and float(dt) > 0):
+        dt = seconds("dt", dt)
+        if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt = {dt!r} is invalid: allowed a finite time step > 0 s")
-        return max(1, math.ceil(span / float(dt) * (1 + 1e-9)))
-    return max(1, math.ceil(safety * span / float(cfl_time_step(scene, params, state))))
+        check_dt(scene, params, state, dt)
+        return max(1, math.ceil(span / dt * (1 + 1e-9)))
+    if isinstance(safety, bool) or not (isinstance(safety, (int, float)) and math.isfinite(safety) and safety >= 1):
+        raise ValueError(f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
+                         "at the initial CFL step)")
+    return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
 
 
 def _stack(states):
@@ -282,7 +314,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
       nodal sums completed across them (`jaxmpm.distributed`); the state passed and the results
       are in the scene's particle order. Not with restart_file or debug.
     """
-    t_end = scene.t_end if t_end is None else float(t_end)
+    t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)
     chunk = None if chunk is None else count("chunk", chunk)
@@ -293,7 +325,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         check_state(scene, state)
         t_end = check_t_end(t_end, state.t)
         if dt is not None:
-            check_dt(scene, params, state, float(dt))
+            check_dt(scene, params, state, seconds("dt", dt))
     if (traced or n_steps is not None) and debug:
         raise ValueError("debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
                          "nothing): allowed debug=False there, or no n_steps outside them")

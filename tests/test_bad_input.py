@@ -62,6 +62,12 @@ def simulate_with(**kw):
     jaxmpm.simulate(s, p, jaxmpm.init_state(s, p), progress=False, **kw)
 
 
+def plan_with(params=lambda p: p, state=lambda st: st, **kw):
+    s = scene()
+    p = jaxmpm.default_params(s)
+    return jaxmpm.plan_steps(s, params(p), state(jaxmpm.init_state(s, p)), kw.pop("t_end", 1e-3), **kw)
+
+
 def ensemble_with(state=None, member=None, **kw):
     """An ensemble of two members of scene() (the second changed by `member`) from the initial state
     changed by `state`."""
@@ -217,6 +223,17 @@ CASES = [
     ("restart every 0 chunks", lambda: simulate_with(restart_file="x.h5", restart_every=0), r"restart_every = 0 is invalid: allowed an integer >= 1"),
     ("n_steps missing under jit", lambda: jax.jit(lambda p: jaxmpm.simulate(scene(), p, jaxmpm.init_state(scene(), jaxmpm.default_params(scene())))[0].t)(jaxmpm.default_params(scene())),
      r"n_steps is required inside jit/grad/vmap"),
+    ("one material key for two materials", lambda: scene(materials=(), phases=(
+        Phase("a", M, Box((0.2, 0.2), (0.4, 0.4))), Phase("b", dataclasses.replace(M, constants=(("E", 2e6), ("nu", 0.3), ("rho0", 1000.0))), Box((0.5, 0.5), (0.7, 0.7))))),
+     r"phase\.b\.material = 'm' is invalid: allowed one material per key: phase\.a has another material of key 'm'"),
+    ("speed overflowing the CFL step", lambda: plan_with(state=lambda st: dataclasses.replace(st, v=st.v.at[0].set(1e200))),
+     r"the CFL time step at t = 0 s is 0\.0: allowed a finite time > 0 s; a particle or wave speed is not finite or too large"),
+    ("step plan from bad params", lambda: plan_with(params=lambda p: p.with_constant("block", "E", -1.0)),
+     r"params\.phases\['block'\]\['E'\] = -1\.0 is invalid: allowed \(0, inf\) Pa"),
+    ("step plan over the CFL limit", lambda: plan_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s"),
+    ("step plan with a safety below 1", lambda: plan_with(safety=0.5), r"safety = 0\.5 is invalid: allowed a number >= 1"),
+    ("end time as a word", lambda: simulate_with(t_end="abc"), r"t_end = 'abc' is invalid: allowed a number of seconds"),
+    ("time step as a list", lambda: simulate_with(dt=[1e-5]), r"dt = \[1e-05\] is invalid: allowed a number of seconds"),
     # --- scene files
     ("unknown key in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 0.1\nspacing = 2")), r"grid\.spacing is an unknown key"),
     ("malformed TOML", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = = 0.1")), r"malformed TOML: .*line"),
@@ -234,6 +251,29 @@ CASES = [
 def test_bad_input_gets_a_clear_error(kind, action, pattern):
     with pytest.raises(ValueError, match=pattern):
         action()
+
+
+def test_numpy_numbers_are_numbers():
+    """NumPy scalars and integer arrays are accepted where Python numbers are (stored as Python
+    ints and floats); NumPy booleans are not numbers."""
+    m = Material.make("n", "hypoelastic", rho0=np.float32(1000.0), E=np.int64(1_000_000), nu=np.float16(0.25))
+    assert m.as_dict() == {"rho0": 1000.0, "E": 1e6, "nu": 0.25}
+    g = Grid(cells=np.array([10, 10]), h=np.float32(0.1))
+    p = Phase("block", m, Box((0.2, 0.2), (0.6, 0.6)), ppc=np.int64(3), field=np.int32(0))
+    s = Scene(grid=g, phases=(p,), window=(np.int64(4), 4))
+    assert (s.grid.cells, p.ppc, p.field, s.window) == ((10, 10), 3, 0, (4, 4))
+    assert all(type(c) is int for c in s.grid.cells + s.window + (p.ppc, p.field))
+    with pytest.raises(ValueError, match=r"materials\.n\.rho0 = np\.True_ is invalid: allowed a number"):
+        Material.make("n", "hypoelastic", rho0=np.True_, E=1e6, nu=0.25)
+
+
+def test_a_batch_member_out_of_range_is_an_index_error():
+    """Indexing a batch clamps silently in JAX; `member` refuses an index outside [-B, B)."""
+    batch = jaxmpm.batch.sweep(jaxmpm.default_params(scene()), cfl=[0.1, 0.2])
+    assert float(jaxmpm.batch.member(batch, -1).cfl) == 0.2
+    for i in (2, -3):
+        with pytest.raises(IndexError, match=rf"member {i} is out of range: allowed -2 <= i < 2"):
+            jaxmpm.batch.member(batch, i)
 
 
 def test_a_mixture_may_share_space_and_touching_bodies_may_touch():

@@ -89,6 +89,29 @@ def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
     assert not tmp_path.exists() or os.listdir(tmp_path) == []
 
 
+def test_run_refuses_an_out_it_cannot_write_in_before_simulating(tmp_path, capsys, monkeypatch):
+    """A folder this user cannot write to (here: every new file there refused, as on a read-only
+    disk; chmod would not stop a root user) is found before the run, not when it saves."""
+    import jaxmpm.files
+
+    real_open = os.open
+
+    def refuse(path, flags, *a):
+        if str(path).startswith(str(tmp_path / "ro")) and flags & os.O_CREAT:
+            raise PermissionError(13, "Permission denied")
+        return real_open(path, flags, *a)
+
+    def no_simulation(*a, **k):
+        raise AssertionError("simulated although --out cannot be written")
+
+    monkeypatch.setattr(jaxmpm.files.os, "open", refuse)
+    monkeypatch.setattr(jaxmpm, "simulate", no_simulation)
+    assert cli.main(["run", "--out", str(tmp_path / "ro"), "--no-progress", *TINY]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot write in {tmp_path / 'ro'}: Permission denied" in err and "Traceback" not in err
+    assert os.listdir(tmp_path / "ro") == []
+
+
 def test_run_refuses_an_out_that_is_a_file_before_simulating(tmp_path, capsys):
     ofile = tmp_path / "ofile"
     ofile.write_text("keep")

@@ -98,22 +98,26 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     real = restart.save
     calls = {"n": 0}
 
-    class Stop(Exception):
-        pass
-
-    def save_then_stop(*a, **k):
+    def save_then_stop(*a, **k):       # Ctrl-C after the third save
         real(*a, **k)
         calls["n"] += 1
         if calls["n"] == 3:
-            raise Stop
+            raise KeyboardInterrupt
 
     monkeypatch.setattr(restart, "save", save_then_stop)
-    with pytest.raises(Stop):
-        cli.main(["run", "--t-end", "1.5", "--n-out", "3", "--opt", "resolution=0.25", "--out", str(out),
-                  "--no-progress", "--x64", "--restart-every", "2"])
+    argv = ["run", "--t-end", "1.5", "--n-out", "3", "--opt", "resolution=0.25", "--out", str(out), "--no-progress", "--x64",
+            "--restart-every", "2"]
+    capsys.readouterr()
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err
+    assert f"interrupted: its progress is saved in {out / 'elastic_impact.restart.h5'}" in err
+    assert f"jaxmpm run --resume {out}" in err and "Traceback" not in err
     monkeypatch.setattr(restart, "save", real)
     assert not (out / "elastic_impact.h5").exists()
-    assert cli.main(["run", "--resume", str(out), "--no-progress"]) == 0
+    assert cli.main(argv) == 2                        # the same command again: it points to --resume, not --overwrite alone
+    err = capsys.readouterr().err
+    assert f"continue it with `jaxmpm run --resume {out}`" in err and "discards it" in err
+    assert cli.main(["run", "--resume", str(out / "elastic_impact.restart.h5"), "--no-progress"]) == 0   # the file, named
     _, history = io.read(out / "elastic_impact.h5")
     scene = dataclasses.replace(jaxmpm.load_scene("elastic_impact", resolution=0.25), t_end=1.5, n_out=3)
     params = jaxmpm.default_params(scene)
@@ -122,6 +126,8 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     np.testing.assert_array_equal(np.asarray(history.x), np.asarray(full.x))
     assert cli.main(["run", "--resume", str(tmp_path), "--no-progress"]) == 2     # no restart file there
     assert "expected one *.restart.h5" in capsys.readouterr().err
+    assert cli.main(["run", "--resume", str(tmp_path / "nowhere"), "--no-progress"]) == 2
+    assert f"--resume '{tmp_path / 'nowhere'}' does not exist" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------------- bad restart files

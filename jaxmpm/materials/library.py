@@ -12,6 +12,7 @@ scene file, with `library = "<key>"` to start from a library entry and override 
 from __future__ import annotations
 
 import functools
+import numbers
 import warnings
 from dataclasses import dataclass
 from importlib import resources
@@ -58,7 +59,7 @@ class Material:
         vals = {}
         for k in sorted(needed):
             v = constants[k]
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
                 raise ValueError(f"{where}.{k} = {v!r} is invalid: allowed a number")
             check_constant(model, k, float(v), f"{where}.{k}")
             vals[k] = float(v)
