@@ -51,6 +51,7 @@ from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar      # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
+from outputs import add_overwrite, check_outputs   # noqa: E402  benchmarks/outputs.py
 from riemann import sample   # noqa: E402  (exact Riemann solution, shared with the tests)
 
 C_BAR = 10.0
@@ -198,9 +199,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
+    add_overwrite(ap)
     args = ap.parse_args(argv)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    check_outputs(out, out.with_suffix(".png"), overwrite=args.overwrite)
     rows = []
     for spec in rows_to_run(args.quick):
         r = measure(*spec, repeats=args.repeats)

@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 
 HERE = Path(__file__).resolve().parent
 
@@ -137,7 +138,10 @@ def main():
     ap.add_argument("--steps", type=int, default=None, help="steps per run (default 50 in 2D, 10 in 3D)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default=None)
+    add_overwrite(ap)
     a = ap.parse_args()
+    out = Path(a.out) if a.out else HERE / "results" / f"apic_transfer_{a.dim}d.csv"
+    check_outputs(out, overwrite=a.overwrite)
     n_grid = a.n_grid or (128 if a.dim == 2 else 48)
     steps = a.steps or (50 if a.dim == 2 else 10)
     progs, args, n = programs(a.dim, n_grid, steps)
@@ -170,7 +174,6 @@ def main():
     for kind in ("forward", "gradient"):
         for form in ("offset", "stencil"):
             print(f"{kind}: {form} / window = {by[(form, kind)]['ms_per_step_min'] / by[('window', kind)]['ms_per_step_min']:.2f}")
-    out = Path(a.out) if a.out else HERE / "results" / f"apic_transfer_{a.dim}d.csv"
     with open(out, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()

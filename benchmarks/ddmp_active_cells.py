@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 
 BOXES = (((0.40, 0.62), (0.60, 0.80)), ((0.20, 0.50), (0.80, 0.60)), ((0.20, 0.20), (0.80, 0.48)))
 
@@ -89,7 +90,9 @@ def main():
     ap.add_argument("--n-grid", type=int, default=128)
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "ddmp_active_cells.csv"))
+    add_overwrite(ap)
     a = ap.parse_args()
+    check_outputs(a.out, overwrite=a.overwrite)
     progs = []
     for groups in (((0, 1, 2),), ((0,), (1,), (2,))):
         c = case(a.n_grid, groups)

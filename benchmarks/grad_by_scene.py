@@ -27,6 +27,7 @@ import time
 import jax
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 
 jax.config.update("jax_enable_x64", True)
 
@@ -89,7 +90,9 @@ def main():
     ap.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
     ap.add_argument("--scenes", default=",".join(SCENES), help="comma-separated: " + " | ".join(SCENES))
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    add_overwrite(ap)
     args = ap.parse_args()
+    check_outputs(os.path.join(args.out, "grad_by_scene.csv"), overwrite=args.overwrite)
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = [n for n in names if n not in SCENES]
     if unknown:

@@ -27,6 +27,7 @@ import time
 import jax
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 
 jax.config.update("jax_enable_x64", True)
 
@@ -125,7 +126,9 @@ def main():
     ap.add_argument("--modes", default="nested,steps,none", help="checkpointing: nested, steps, none")
     ap.add_argument("--max-gib", type=float, default=8.0, help="run only programs needing less (GiB)")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    add_overwrite(ap)
     args = ap.parse_args()
+    check_outputs(*(os.path.join(args.out, f"grad_cost.{ext}") for ext in ("csv", "png")), overwrite=args.overwrite)
     steps = [int(s) for s in args.steps.split(",")]
     modes = args.modes.split(",")
     for m in modes:

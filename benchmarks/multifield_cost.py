@@ -24,6 +24,7 @@ import time
 import jax
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 
 
 def scene_for(n_fields, n_grid, continuity="auto", window=False):
@@ -121,7 +122,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=7, help="interleaved rounds; the fastest counts")
     ap.add_argument("--x64", action="store_true")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "multifield_cost.csv"))
+    add_overwrite(ap)
     a = ap.parse_args()
+    check_outputs(a.out, os.path.splitext(a.out)[0] + ".png", overwrite=a.overwrite)
     if a.x64:
         jax.config.update("jax_enable_x64", True)
     configs = [(1, "auto", False)] + [(k, c, False) for c in ("transport", "off") for k in (2, 3)]

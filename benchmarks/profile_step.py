@@ -39,6 +39,7 @@ import time
 import jax
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
 from grad_by_scene import SCENES, problem
 from jaxmpm.step import STAGE_PARTS, STAGES
 
@@ -146,9 +147,11 @@ def main():
     ap.add_argument("--runs", type=int, default=5, help="calls of each program under the profiler (each cell: the fastest)")
     ap.add_argument("--parts", action="store_true", help="split the grid update and the grid-to-particle stage into their parts")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    add_overwrite(ap)
     args = ap.parse_args()
     if args.scene not in SCENES:
         ap.error(f"--scene: unknown {args.scene!r}; allowed: {', '.join(SCENES)}")
+    check_outputs(os.path.join(args.out, f"profile_{args.scene}.csv"), overwrite=args.overwrite)
     if args.steps < 1 or args.runs < 1:
         ap.error("--steps and --runs: at least 1")
     rows, wall = profile(args.scene, args.steps, args.runs, args.parts)

@@ -21,6 +21,8 @@ import statistics
 import sys
 import time
 
+from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+
 
 def main():
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
@@ -31,10 +33,12 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--x64", action="store_true")
     ap.add_argument("--out", default=None, help="CSV path (default benchmarks/results/sharded_scaling_<scene>.csv)")
+    add_overwrite(ap)
     args = ap.parse_args()
     if args.out is None:
         suffix = "_3d" if args.dim == 3 else ""
         args.out = os.path.join(os.path.dirname(__file__), "results", f"sharded_scaling_{args.scene}{suffix}.csv")
+    check_outputs(args.out, overwrite=args.overwrite)
     if args.dim == 3 and args.scene != "mpm88":
         raise SystemExit(f"--dim 3 is invalid with --scene {args.scene}: allowed with mpm88 only")
     if "jax" in sys.modules:

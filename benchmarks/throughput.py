@@ -61,6 +61,7 @@ import time
 from pathlib import Path
 
 from devices import describe   # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs, check_table   # benchmarks/outputs.py
 
 HERE = Path(__file__).resolve().parent
 PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"   # /work/shared/bench/peers
@@ -279,11 +280,14 @@ def main(argv=None):
                     "results/throughput_3d.csv in 3D)")
     ap.add_argument("--replot", default=None, metavar="CSV", help="only draw the PNG of a table this script wrote")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)   # child mode: one jaxmpm config
+    add_overwrite(ap)
     a = ap.parse_args(argv)
     if a.replot:
-        with open(a.replot, newline="") as f:
+        table = check_table(a.replot)
+        png = table.with_suffix(".png")
+        check_outputs(png, overwrite=a.overwrite)
+        with open(table, newline="") as f:
             rows = list(csv.DictReader(f))
-        png = Path(a.replot).with_suffix(".png")
         plot(rows, png)
         print(f"wrote {png}")
         return
@@ -293,6 +297,8 @@ def main(argv=None):
     if a.one:
         print(json.dumps(run_jaxmpm(a.one, a.dim, a.n_grid, a.steps, a.repeats)))
         return
+    out = Path(a.out) if a.out else HERE / "results" / ("throughput.csv" if a.dim == 2 else "throughput_3d.csv")
+    check_outputs(out, out.with_suffix(".png"), overwrite=a.overwrite)
 
     rows = []
     names = ([] if a.only == "jaxmpm" else list(PEERS)) + ([] if a.only == "peers" else list(JAXMPM))
@@ -332,8 +338,6 @@ def main(argv=None):
               f"{fmt(r.get('mpart_steps_per_s'), '.3f'):>13s} {fmt(r.get('ratio_to_jax_naive'), '.2f'):>7s} {yn('finite'):>6s} {yn('stable'):>6s}  "
               f"{'compile %.1f s; ' % r['compile_s'] if r.get('compile_s') else ''}{r.get('note', '')}")
 
-    out = Path(a.out) if a.out else HERE / "results" / ("throughput.csv" if a.dim == 2 else "throughput_3d.csv")
-    out.parent.mkdir(parents=True, exist_ok=True)
     with open(out, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
         w.writeheader()
