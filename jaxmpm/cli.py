@@ -157,7 +157,7 @@ def cmd_run(args) -> int:
         params = jaxmpm.default_params(scene)
         state = initial_state(scene, params)
         print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
-              f"{state.x.shape[0]} particles in {len(scene.phases)} phases, to t = {t_end:g} s with {n_out} outputs, "
+              f"{state.x.shape[0]} particles in {len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}, to t = {t_end:g} s with {n_out} outputs, "
               f"{state.x.dtype}", flush=True)
         start = diagnostics.summary(scene, params, state)
         itemsize = state.x.dtype.itemsize

@@ -62,8 +62,21 @@ jax.tree_util.register_dataclass(
 
 
 def default_params(scene, dtype=None) -> Params:
-    """Params holding the scene's numbers. dtype: float64 when jax_enable_x64 is on, else float32."""
+    """Params holding the scene's numbers. dtype: float64 when jax_enable_x64 is on, else float32
+    (the two allowed; float64 needs jax_enable_x64)."""
+    from jaxmpm.scene import Scene
+
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene = {scene!r} is invalid: allowed a Scene (jaxmpm.load_scene(name) builds a built-in one)")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    allowed = ("float32", "float64") if jax.config.jax_enable_x64 else ("float32",)
+    try:
+        name = np.dtype(dtype).name
+    except TypeError:
+        name = repr(dtype)
+    if name not in allowed:
+        raise ValueError(f"dtype = {name} is invalid: allowed {' or '.join(allowed)}"
+                         + ("" if jax.config.jax_enable_x64 else " (float64 after jax.config.update('jax_enable_x64', True))"))
     f = lambda v: jnp.asarray(v, dtype=dtype)
     d = scene.dim
     phases = {p.name: {k: f(v) for k, v in scene.material(p).constants} for p in scene.phases}

@@ -13,7 +13,7 @@ Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -83,7 +83,20 @@ class Boundary:
     layers: int = 1
 
     def __post_init__(self):
-        faces = dict(self.faces)
+        if isinstance(self.faces, Mapping):
+            pairs = list(self.faces.items())
+        else:
+            try:
+                pairs = [tuple(f) for f in self.faces] if not isinstance(self.faces, (str, bytes)) else None
+            except TypeError:
+                pairs = None
+            if pairs is None or any(len(f) != 2 or isinstance(f[0], str) and len(f[0]) == 1 for f in pairs):
+                _fail("boundary.faces", self.faces, "pairs (face, kind), e.g. (('y_lo', 'fixed'),), or a dict")
+        names = [k for k, _ in pairs]
+        for k in names:
+            if names.count(k) > 1:
+                _fail(f"boundary.{k}", [v for n, v in pairs if n == k], "one condition per face (it is given twice)")
+        faces = dict(pairs)
         for k, v in faces.items():
             if k not in FACE_NAMES:
                 _fail(f"boundary.{k}", v, f"face names {FACE_NAMES}")

@@ -110,6 +110,8 @@ def scene_from_dict(d: Mapping) -> Scene:
         mats.append(Material.make(key, model, **spec))
 
     phases = d.get("phase", [])
+    if isinstance(phases, Mapping):
+        raise ValueError("phase is a single table [phase]: allowed an array of tables, each written [[phase]]")
     if not isinstance(phases, list) or not phases:
         raise ValueError("phase is missing: a scene needs at least one [[phase]] table")
     plist = []
@@ -264,6 +266,9 @@ def set_dotted(d: dict, key: str, value: Any) -> None:
             node = match[0]
             i += 2
             continue
+        if p == "materials" and i == 0 and parts[1] not in node.get("materials", {}) and parts[-1] not in ("model", "library"):
+            raise ValueError(f"--set {key}: no material named {parts[1]!r} (materials: {sorted(node.get('materials', {}))}; "
+                             "a new one needs its model or library first)")
         if p not in node:
             node[p] = {}
         if not isinstance(node[p], dict):
@@ -299,13 +304,18 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
             raise ValueError(f"scene file {path!r} is not a TOML scene file: it is not UTF-8 text "
                              f"(byte {e.start}: {e.reason})") from None
         d = parse_toml(text, path)
+        source = f"{path}: "            # errors in the file's contents name it
     elif path in BUILTINS:
         scene = BUILTINS[path].build(**options)
         if not overrides:
             return scene
         d = scene_to_dict(scene)
+        source = ""
     else:
         raise ValueError(f"scene {path!r} is neither a built-in scene nor a .toml file: built-ins are {sorted(BUILTINS)}")
     for k, v in (overrides or {}).items():
         set_dotted(d, k, v)
-    return scene_from_dict(d)
+    try:
+        return scene_from_dict(d)
+    except ValueError as e:
+        raise ValueError(f"{source}{e}") from None

@@ -95,6 +95,34 @@ def check_dt(scene, params, state, dt) -> None:
                          f"(cfl = {float(params.cfl):g}, h = {scene.grid.h:g} m)")
 
 
+NUMBERS_PER_NODE = 16     # a lower bound: a step holds far more per node and velocity field than this
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new allocations (Linux /proc/meminfo), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_memory(scene, state) -> None:
+    """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
+    numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
+    guess (a larger grid can still run out of memory later)."""
+    avail = available_memory()
+    nodes = math.prod(c + 1 for c in scene.grid.cells)
+    need = nodes * scene.n_fields * NUMBERS_PER_NODE * np.asarray(state.x).dtype.itemsize
+    if avail is not None and need > avail:
+        raise ValueError(f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
+                         f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
+                         "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)")
+
+
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """Number of scan steps that reach t_end: (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run. Call it outside jit/grad/vmap and pass it as `n_steps`."""
@@ -323,6 +351,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     if not traced:
         check_params(scene, params)
         check_state(scene, state)
+        check_memory(scene, state)
         t_end = check_t_end(t_end, state.t)
         if dt is not None:
             check_dt(scene, params, state, seconds("dt", dt))

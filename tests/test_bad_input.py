@@ -234,7 +234,18 @@ CASES = [
     ("step plan with a safety below 1", lambda: plan_with(safety=0.5), r"safety = 0\.5 is invalid: allowed a number >= 1"),
     ("end time as a word", lambda: simulate_with(t_end="abc"), r"t_end = 'abc' is invalid: allowed a number of seconds"),
     ("time step as a list", lambda: simulate_with(dt=[1e-5]), r"dt = \[1e-05\] is invalid: allowed a number of seconds"),
+    ("boundary faces as one name", lambda: Boundary(faces="y_lo"), r"boundary\.faces = 'y_lo' is invalid: allowed pairs \(face, kind\)"),
+    ("one face given two conditions", lambda: Boundary(faces=(("y_lo", "fixed"), ("y_lo", "free"))),
+     r"boundary\.y_lo = \['fixed', 'free'\] is invalid: allowed one condition per face"),
+    ("integer parameters", lambda: jaxmpm.default_params(scene(), dtype=jnp.int32), r"dtype = int32 is invalid: allowed float32"),
+    ("grid beyond the memory", lambda: (lambda s: jaxmpm.simulate(s, jaxmpm.default_params(s), jaxmpm.init_state(s, jaxmpm.default_params(s)), progress=False))(
+        scene(grid=Grid(cells=(200_000, 200_000), h=0.1), phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6))),))),
+     r"grid\.cells = \[200000, 200000\] is invalid: its 40,000,400,001 nodes x 1 velocity field\(s\) need more than .* GiB"),
+    ("--set on a material the scene lacks", lambda: jaxmpm.load_scene("elastic_impact", overrides={"materials.rubber.E": 1e6}),
+     r"--set materials\.rubber\.E: no material named 'rubber' \(materials: \['soft_elastic'\]"),
     # --- scene files
+    ("a single [phase] table", lambda: scene_from_toml(FILE.replace("[[phase]]", "[phase]")),
+     r"phase is a single table \[phase\]: allowed an array of tables, each written \[\[phase\]\]"),
     ("unknown key in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 0.1\nspacing = 2")), r"grid\.spacing is an unknown key"),
     ("malformed TOML", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = = 0.1")), r"malformed TOML: .*line"),
     ("wrong type in a scene file", lambda: scene_from_toml(FILE.replace("h = 0.1", "h = 'small'")), r"grid\.h = 'small' is invalid"),
@@ -251,6 +262,15 @@ CASES = [
 def test_bad_input_gets_a_clear_error(kind, action, pattern):
     with pytest.raises(ValueError, match=pattern):
         action()
+
+
+def test_an_error_in_a_scene_files_contents_names_the_file(tmp_path):
+    path = tmp_path / "typo.toml"
+    path.write_text(FILE.replace("h = 0.1", "h = 0.1\nspacing = 2"))
+    with pytest.raises(ValueError, match=rf"^{path}: grid\.spacing is an unknown key"):
+        jaxmpm.load_scene(str(path))
+    with pytest.raises(ValueError, match=rf"^{path}: grid\.spacing is an unknown key"):
+        jaxmpm.load_scene(str(path), overrides={"t_end": 1.0})
 
 
 def test_numpy_numbers_are_numbers():
