@@ -156,6 +156,13 @@ def material_volume_rate(lay, params, state, L, dt, p_amb):
     B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
     relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s.
 
+    The ambient pressure is the common pressure (E6) of the OTHER velocity fields at the particle
+    (`multifield.interface_force`), computed where the scene has interface forces; PHYSICS's E8
+    names the other phases. Phases grouped in one field are therefore not each other's ambient:
+    in a one-field scene (the default debris cloud) or a drag-only one, fragmented material
+    relaxes toward 0 Pa, as into vacuum, wherever it is. Splitting the phases into fields (with
+    interface forces) gives each the others' pressure.
+
     (p_i - p_amb) / K_i is the linearised volumetric strain that brings p_i to p_amb. It is clipped
     to [-1, 1] (one e-fold of volume; our bound, not the seed's): far from the EOS's reference
     state (a failed, hot particle expanded to rho / rho0 ~ 1e-4, where K -> 0 while p stays

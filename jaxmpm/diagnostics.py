@@ -11,7 +11,7 @@ from jaxmpm.state import phase_slices
 
 
 def total_mass(state):
-    """kg."""
+    """kg (per unit depth in 2D, kg/m; per unit area in 1D; per radian in axisymmetric scenes)."""
     return jnp.sum(state.mass)
 
 
@@ -21,17 +21,19 @@ def momentum(state):
 
 
 def kinetic_energy(state):
-    """J (per unit length in 2D, per unit area in 1D)."""
+    """J (per unit depth in 2D, J/m; per unit area in 1D; per radian in axisymmetric scenes)."""
     return 0.5 * jnp.sum(state.mass * jnp.sum(state.v**2, axis=-1))
 
 
 def internal_energy(state):
-    """sum_p m_p e_p, J: the work done on the particles by their stress (strain energy, heat)."""
+    """sum_p m_p e_p, J (per unit depth, area or radian as `kinetic_energy`): the work done on the
+    particles by their stress (strain energy, heat)."""
     return jnp.sum(state.mass * state.energy)
 
 
 def gravitational_energy(state, gravity):
-    """- sum_p m_p g . x_p, J (zero at the origin)."""
+    """- sum_p m_p g . x_p, J (per unit depth, area or radian as `kinetic_energy`; zero at the
+    origin). gravity: (d,) m/s^2."""
     return -jnp.sum(state.mass * (state.x @ gravity))
 
 

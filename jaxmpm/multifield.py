@@ -157,9 +157,13 @@ def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
         R_m = dP / dp_m = (B^T v)_m,
 
     R_m the rate (m^3/s) at which the fields' motion opens (R > 0) or closes (R < 0) volume at node
-    m; in the continuum R = sum_k v_k . grad theta_k - v_cm . grad Theta. This is the seed's
-    <div v_i> = (kappa_i / sum_j theta_j kappa_j) Theta div u_m: each phase takes its
-    compressibility share of the volume change, and the particles of a phase share it by V_p S_mp.
+    m; in the continuum R = sum_k v_k . grad theta_k - v_cm . grad Theta. It takes the place of the
+    seed's <div v_i> = (kappa_i / sum_j theta_j kappa_j) Theta div u_m in the same spirit (each
+    phase takes its compressibility share of the volume change, and the particles of a phase share
+    it by V_p S_mp) but is not that formula: the share is added to each field's own divergence
+    instead of replacing it, Theta moves with the mass-averaged velocity v_cm, not the
+    volume-averaged u_m, and no nodal pressure is evolved (PHYSICS's pressure = "continuity"
+    option); what decides is the energy identity below, which the seed's form broke in impacts.
     Their internal energy then changes by -sum_p p_p V_p D_p dt = -P dt, exactly what the interface
     forces give the motion, and Theta is carried with the mass-averaged velocity,
     d Theta / dt + v_cm . grad Theta = 0: fields that meet are compressed and pushed apart

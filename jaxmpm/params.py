@@ -29,6 +29,8 @@ from jaxmpm.materials.models import check_constant, model_of
 
 @dataclass(frozen=True)
 class Params:
+    """The model's numbers (a pytree; the fields and their units are in the module docstring)."""
+
     phases: dict
     gravity: jax.Array
     gravity_ramp: jax.Array

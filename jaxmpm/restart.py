@@ -59,7 +59,9 @@ def _read_tree(group, like, path, what: str):
 
 
 def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chunk, dt):
-    """Write the restart file at `path` atomically. history: list of finished output States."""
+    """Write the restart file at `path` atomically. history: list of finished output States; t0,
+    t_end (s): the run's start and end; n_out, next_out: its outputs and the next one due; chunk:
+    steps per chunk; dt: the fixed step (s) or None (the CFL step)."""
     from jaxmpm import __version__
     from jaxmpm.scenefile import scene_to_toml
 

@@ -124,8 +124,10 @@ def check_memory(scene, state) -> None:
 
 
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
-    """Number of scan steps that reach t_end: (t_end - t) / dt with a safety margin for the CFL
-    step shrinking during the run. Call it outside jit/grad/vmap and pass it as `n_steps`."""
+    """Number of scan steps that reach t_end (s): (t_end - t) / dt with a safety margin for the CFL
+    step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
+    CFL step at `state`, times `safety` >= 1). Call it outside jit/grad/vmap and pass it as
+    `n_steps`."""
     span = check_t_end(t_end, state.t) - float(state.t)
     check_params(scene, params)
     check_state(scene, state)

@@ -8,6 +8,8 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
     v       (N, d)    velocity, m/s
     mass    (N,)      kg (constant)
     volume  (N,)      current material volume, m^3
+    (mass and volume in 3D; per unit depth in 2D, kg/m and m^2, per unit area in 1D, kg/m^2 and
+    m, and per radian in axisymmetric scenes, kg/rad and m^3/rad: `jaxmpm.io.units`)
     F       (N, D, D) deformation gradient (D = d, or 3 in axisymmetric scenes: r, z, theta)
     stress  (N, D, D) Cauchy stress, Pa (tension positive)
     energy  (N,)      specific internal energy, J/kg
@@ -30,6 +32,8 @@ import numpy as np
 
 @dataclass(frozen=True)
 class State:
+    """What evolves (a pytree; the fields, shapes and units are in the module docstring)."""
+
     t: jax.Array
     x: jax.Array
     v: jax.Array

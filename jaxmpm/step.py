@@ -286,7 +286,7 @@ def seed_update(lay, params, state, dt):
         positions with the same operators as the force (E11/E12 adjoint). Positions, F and stress
         follow one velocity field; a contact dissipates (inelastic merge of nodal momenta).
       'seed': remap at the new positions (the seed's m_i u_i = sum m_p u_p S_i(x_p^new)),
-        x_p += dt sum_n (v_n + a_n dt) S_np. A 200 m/s single-field impact GAINS 10% energy at
+        x_p += dt sum_n (v_n + a_n dt) S_np. A 200 m/s single-field impact GAINS 11% energy at
         CFL 0.3 with it (1.5% at CFL 0.05), 'musl' loses 6%: tests/test_update_schemes.py.
       'seed_halfstep': as 'seed' with the seed's literal x_p += dt sum (v_n + a_n dt / 2) S_np,
         which moves particles with a velocity other than the one driving the stress: first order
@@ -389,7 +389,7 @@ def apic_update(lay, params, state, dt):
 def make_step(scene, shards=1, axis_name=None):
     """Compose the pure step of `scene`: step(params, state, t_stop=inf, dt=None) -> state.
 
-    dt defaults to the CFL step (PHYSICS 2.1); it is clipped so that t never passes t_stop, and a
+    t_stop and dt in s. dt defaults to the CFL step (PHYSICS 2.1); it is clipped so that t never passes t_stop, and a
     step with dt = 0 returns the state unchanged (so a fixed-length scan stays differentiable).
     shards, axis_name: the step of one device's block of particles when every phase's particles
     are split in `shards` equal parts along the mesh axis `axis_name` (run it under shard_map:

@@ -37,7 +37,9 @@ class Material:
 
     @staticmethod
     def make(key: str, model: str, **constants: float) -> "Material":
-        """Build and validate, e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0) or
+        """Build and validate; constants in SI units (rho0 kg/m^3, moduli and pressures Pa, speeds m/s,
+        temperatures K, times s: each model's table in jaxmpm.materials.models gives the unit of
+        each), e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0) or
         Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0). Model kinds:
         jaxmpm.materials.models (one-piece kinds and 'eos[+strength][+failure...]' compositions)."""
         from jaxmpm.materials.models import check_constant, model_of, split_model, MODELS
