@@ -183,7 +183,7 @@ def test_ensemble_runs_again_when_its_own_plan_falls_short():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="open (issue 7): at resolution 0.75 the debris front (point 1) and the "
+@pytest.mark.xfail(strict=True, reason="open (issue 7): at resolution 0.75 the debris front (point 1) and the "
                    "projectile's front (point 2) move together (5.57, 5.57 km/s; experiment 6.3 > 6.1); at "
                    "resolution 2 point 2 leads (5.62, 5.80)")
 def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
@@ -220,8 +220,8 @@ def test_gradient_of_the_fit_loss_matches_finite_differences():
 @pytest.mark.slow
 def test_gradient_of_the_fit_loss_matches_small_step_differences():
     """The issue's check of the fit loss's gradient (float64, two fields, 3 us, at (C_d, C_h) =
-    (1, 0.15)) against central differences at step 1e-6 in (log C_d, log C_h): within 5% (measured
-    within 1e-4). At this step the differences stay on the smooth piece of the response that AD
+    (1, 0.15)) against central differences at step 1e-6 in (log C_d, log C_h): within 1e-3
+    (measured within 1e-4; the issue asked for 5%). At this step the differences stay on the smooth piece of the response that AD
     differentiates; larger steps cross its jumps (the strict xfail above)."""
     from calibration.fit import loss_fn
     from calibration.model import CloudModel
@@ -235,7 +235,7 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
     print("d loss / d log (C_d, C_h): AD", g, "differences at 1e-6", fd)
     assert abs(g[0]) > 0.1 and abs(g[1]) > 0.01
-    np.testing.assert_allclose(g, fd, rtol=0.05)
+    np.testing.assert_allclose(g, fd, rtol=1e-3)
 
 
 @pytest.mark.parametrize("argv, match", [
@@ -339,7 +339,7 @@ def test_synthetic_recovery_from_two_times_away(synthetic_fit):
 @pytest.mark.slow
 def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
     """The gradient of the loss at the start (the fit's first evaluation, jax.value_and_grad
-    through the checkpointed simulate) against central differences at two step sizes: within 1%
+    through the checkpointed simulate) against central differences at two step sizes: within 1e-3
     (measured 1e-5). Steps of 3e-3 and more straddle small jumps of the observables (d spread /
     d log C_h by differences: 0.064 at steps 3e-4 and 1e-3, 0.065 at 3e-3; d velocity / d log C_h:
     0.024, 0.024, 0.014), see the calibration issue's note."""
@@ -350,7 +350,7 @@ def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
     loss = jax.jit(lambda th: loss_fn(model.observables, target)(th)[0])
     for eps in (1e-3, 3e-4):
         fd = np.array([(float(loss(start + eps * e)) - float(loss(start - eps * e))) / (2 * eps) for e in np.eye(2)])
-        np.testing.assert_allclose(g, fd, rtol=1e-2, err_msg=f"step {eps}")
+        np.testing.assert_allclose(g, fd, rtol=1e-3, err_msg=f"step {eps}")
 
 
 def test_fit_refuses_an_unknown_method():
