@@ -156,8 +156,9 @@ def cmd_run(args) -> int:
         n_out = scene.n_out if args.n_out is None else args.n_out
         params = jaxmpm.default_params(scene)
         state = initial_state(scene, params)
+        phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
         print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
-              f"{state.x.shape[0]} particles in {len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}, to t = {t_end:g} s with {n_out} outputs, "
+              f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
               f"{state.x.dtype}", flush=True)
         start = diagnostics.summary(scene, params, state)
         itemsize = state.x.dtype.itemsize

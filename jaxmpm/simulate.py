@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
@@ -57,9 +58,9 @@ def check_t_end(t_end, t0) -> float:
 
 def seconds(name: str, value) -> float:
     """A time argument (s) as a float; ValueError naming it where it is not a number."""
-    if isinstance(value, bool):
-        value = None
     try:
+        if isinstance(value, bool):
+            raise TypeError
         return float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r} is invalid: allowed a number of seconds") from None
@@ -137,7 +138,7 @@ def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
             raise ValueError(f"dt = {dt!r} is invalid: allowed a finite time step > 0 s")
         check_dt(scene, params, state, dt)
         return max(1, math.ceil(span / dt * (1 + 1e-9)))
-    if isinstance(safety, bool) or not (isinstance(safety, (int, float)) and math.isfinite(safety) and safety >= 1):
+    if isinstance(safety, bool) or not (isinstance(safety, numbers.Real) and math.isfinite(safety) and safety >= 1):
         raise ValueError(f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
                          "at the initial CFL step)")
     return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
