@@ -67,7 +67,8 @@ def batch_size(batch) -> int:
 def sweep(params: Params, **values) -> Params:
     """Params with a leading batch axis: each named top-level field (c_h, drag_coefficient, cfl, ...)
     takes the given values in turn; all other numbers are repeated. Several fields must have equal
-    lengths (zipped, not crossed: cross them with numpy.meshgrid first)."""
+    lengths (zipped, not crossed: cross them with numpy.meshgrid first). A vector field takes a list
+    of vectors, e.g. gravity=[[0, -9.81], [0, -1.62]]."""
     names = {f.name for f in dataclasses.fields(Params)} - {"phases", "body_force"}
     n = None
     for k, v in values.items():
@@ -77,11 +78,13 @@ def sweep(params: Params, **values) -> Params:
             v = np.asarray(v, dtype=float)
         except (TypeError, ValueError):
             raise ValueError(f"sweep: {k} = {v!r} is invalid: allowed a list of numbers") from None
-        if v.ndim != 1 or v.size == 0:
-            raise ValueError(f"sweep: {k} has shape {v.shape}: allowed a 1D list of values")
-        if n is not None and v.size != n:
-            raise ValueError(f"sweep: {k} has {v.size} values, another field {n}: allowed equal lengths")
-        n = v.size
+        each = tuple(np.shape(getattr(params, k)))
+        if v.ndim != 1 + len(each) or v.shape[1:] != each or v.shape[0] == 0:
+            raise ValueError(f"sweep: {k} has shape {v.shape}: allowed a list of values of shape {each} "
+                             f"({'numbers' if not each else f'{each[0]}-vectors'})")
+        if n is not None and v.shape[0] != n:
+            raise ValueError(f"sweep: {k} has {v.shape[0]} values, another field {n}: allowed equal lengths")
+        n = v.shape[0]
     if n is None:
         raise ValueError("sweep: name at least one field, e.g. sweep(params, c_h=[0.02, 0.15])")
     batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), params)

@@ -295,6 +295,8 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
     if path.endswith(".toml") or os.path.sep in path:
         if options:
             raise ValueError(f"options {sorted(options)} apply to built-in scenes only; edit the file {path!r} instead")
+        if os.path.isdir(path):
+            raise ValueError(f"scene file {path!r} is a folder: allowed a .toml scene file or a built-in scene name")
         if not os.path.isfile(path):
             raise ValueError(f"scene file {path!r} does not exist")
         try:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+import os
 
 import jax
 import jax.numpy as jnp
@@ -361,6 +362,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     if (traced or n_steps is not None) and debug:
         raise ValueError("debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
                          "nothing): allowed debug=False there, or no n_steps outside them")
+    if restart_file is not None and not isinstance(restart_file, (str, os.PathLike)):
+        raise ValueError(f"restart_file = {restart_file!r} is invalid: allowed a path (str or pathlib.Path) or None")
     if restart_file is not None:
         if traced or n_steps is not None:
             raise ValueError("restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "

@@ -215,6 +215,14 @@ CASES = [
      r"member 1: params\.phases\['block'\]\['E'\] = -2000000\.0 is invalid"),
     ("sweep over words", lambda: jaxmpm.batch.sweep(jaxmpm.default_params(scene()), cfl=["a", "b"]),
      r"sweep: cfl = \['a', 'b'\] is invalid: allowed a list of numbers"),
+    ("sweep of a vector field by numbers", lambda: jaxmpm.batch.sweep(jaxmpm.default_params(scene()), gravity=[0.0, -9.8]),
+     r"sweep: gravity has shape \(2,\): allowed a list of values of shape \(2,\) \(2-vectors\)"),
+    ("restart file as a number", lambda: simulate_with(restart_file=5), r"restart_file = 5 is invalid: allowed a path"),
+    ("builder option below its range", lambda: jaxmpm.load_scene("mpm88", n_grid=3), r"mpm88: n_grid = 3 is invalid: allowed an integer >= 8"),
+    ("builder cell count as a fraction", lambda: jaxmpm.load_scene("vibrating_bar", cells=2.5),
+     r"vibrating_bar: cells = 2\.5 is invalid: allowed an integer >= 2"),
+    ("a folder as a scene file", lambda: jaxmpm.load_scene("/"),
+     r"scene file .* is a folder: allowed a \.toml scene file or a built-in scene name"),
     ("stack of two scenes' Params", lambda: jaxmpm.batch.stack([jaxmpm.default_params(scene()), jaxmpm.default_params(two_fields())]),
      r"stack: item 1 has another structure than item 0"),
     ("ensemble ending before the start", lambda: ensemble_with(t_end=-1.0), r"t_end = -1\.0 is invalid: allowed a finite time > state\.t"),
@@ -285,6 +293,12 @@ def test_numpy_numbers_are_numbers():
     assert all(type(c) is int for c in s.grid.cells + s.window + (p.ppc, p.field))
     with pytest.raises(ValueError, match=r"materials\.n\.rho0 = np\.True_ is invalid: allowed a number"):
         Material.make("n", "hypoelastic", rho0=np.True_, E=1e6, nu=0.25)
+
+
+def test_a_sweep_of_a_vector_field_takes_one_vector_per_member():
+    batch = jaxmpm.batch.sweep(jaxmpm.default_params(scene()), gravity=[[0.0, -9.81], [0.0, -1.62]], cfl=[0.2, 0.3])
+    assert batch.gravity.shape == (2, 2) and batch.cfl.shape == (2,)
+    np.testing.assert_array_equal(np.asarray(jaxmpm.batch.member(batch, 1).gravity), [0.0, -1.62])
 
 
 def test_a_batch_member_out_of_range_is_an_index_error():

@@ -47,6 +47,12 @@ def vibrating_bar_state(scene, params, state):
     return dataclasses.replace(state, v=state.v * jnp.sin(beta * state.x[:, :1]))
 
 
+def _check_cells(scene: str, name: str, value, least: int) -> None:
+    """A builder's cell count: an integer >= least (named as the option, not as the grid it makes)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise ValueError(f"{scene}: {name} = {value!r} is invalid: allowed an integer >= {least}")
+
+
 def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: float = 0.1, ppc: int = 2) -> Scene:
     """1D fixed-free bar in its first mode (Bardenhagen, J. Strain Anal. 37 (2002); PHYSICS section 4).
 
@@ -55,6 +61,7 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
     set by `vibrating_bar_state` (applied by `jaxmpm.scenes.initial_state` and `jaxmpm run`). Exact: u(x, t) = (v0 / omega) sin(omega t) sin(beta x), omega = beta c.
     Measures: displacement error against the exact solution, energy conservation.
     """
+    _check_cells("vibrating_bar", "cells", cells, 2)
     L = BAR_LENGTH
     h = L / cells
     n_grid = cells + max(2, int(math.ceil(0.2 * cells)))
@@ -73,6 +80,9 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
     over 5 wave periods; light damping. Exact static stress in the reference position X:
     sigma(X) = -rho g (L - X) (1D, any strain, since sigma = E (F - 1) is the nominal stress).
     """
+    _check_cells("self_weight_column", "cells", cells, 2)
+    if not (isinstance(load, (int, float)) and not isinstance(load, bool) and 0 < load < 1):
+        raise ValueError(f"self_weight_column: load = {load!r} is invalid: allowed a number in (0, 1) (rho g L / E)")
     L, rho, g = 1.0, 1.0, 10.0
     E = rho * g * L / load
     h = L / cells
@@ -92,6 +102,11 @@ def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     slip walls 3 nodes thick, quadratic B-spline APIC (MLS) transfer. The peers sample 8192 random
     particles (2D) in [0.15, 0.55]^d; here a regular lattice of about the same count fills that box.
     """
+    _check_cells("mpm88", "n_grid", n_grid, 8)
+    if dim not in (2, 3):
+        raise ValueError(f"mpm88: dim = {dim!r} is invalid: allowed 2 | 3")
+    if not (isinstance(ppc_scale, (int, float)) and math.isfinite(ppc_scale) and ppc_scale > 0):
+        raise ValueError(f"mpm88: ppc_scale = {ppc_scale!r} is invalid: allowed a finite number > 0")
     n_particles = int((8192 if dim == 2 else 8 * n_grid**dim // 32) * ppc_scale)
     box = 0.4
     cells_in_box = box * n_grid
