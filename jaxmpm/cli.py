@@ -214,14 +214,14 @@ def cmd_materials(args) -> int:
         print(f"{'key':<{width}}  {'default model':<62}  sub-tables it reads that are not yet verified")
         for key in known_keys():
             model = default_model(key)
-            origins = constant_origins(key)
+            origins = constant_origins(key, model)
             used = {origins[name][1] for name in model_of(model).constants if name in origins}
             unverified = [sub for sub, (_, ok, _) in table_provenance(key).items() if sub in used and not ok]
             print(f"{key:<{width}}  {model:<62}  {', '.join(unverified) or '-'}")
         print("\n`jaxmpm materials KEY`: a key's constants with units, sub-tables and sources")
         return 0
-    origins, prov = constant_origins(args.key), table_provenance(args.key)
     model = args.model or default_model(args.key)
+    origins, prov = constant_origins(args.key, model), table_provenance(args.key)
     needed = model_of(model).constants
     print(f"{args.key}: {library_table()[args.key].get('name', '')}")
     print(f"model: {model}{'  (default)' if model == default_model(args.key) else ''}")

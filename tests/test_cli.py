@@ -146,11 +146,11 @@ def _library_toml():
     return library_table()
 
 
-def _read_from(entry, name):
+def _read_from(entry, name, model):
     """The sub-table of a library entry that a model's constant is read from (README: the first of
-    eos, elastic, strength, thermal, spall, failure that holds it; tait_n, tait_B from tait; a
-    fluid's K is derived from its eos)."""
-    if name.startswith("tait_"):
+    eos, elastic, strength, thermal, spall, failure that holds it; tait_n, tait_B from tait, and
+    for a tait model its rho0 and p0 too; a fluid's K is derived from its eos)."""
+    if name.startswith("tait_") or model.split("+")[0] == "tait" and name in entry.get("tait", {}):
         return "tait"
     for sub in ("eos", "elastic", "strength", "thermal", "spall", "failure"):
         if name in entry.get(sub, {}):
@@ -170,7 +170,7 @@ def test_materials_shows_each_constant_with_its_unit_source_and_verification(key
     entry, values = _library_toml()[key], library.library_constants(key)
     for name, (*_, unit) in model_of(model).constants.items():
         row = rows[name]
-        sub = _read_from(entry, name)
+        sub = _read_from(entry, name, model)
         assert float(row[14:28]) == pytest.approx(values[name], rel=1e-5)
         assert row[28:].split() == [*unit.split(), sub, "yes" if entry[sub]["verified"] else "NO"]
         assert f"{sub} [{'verified' if entry[sub]['verified'] else 'not verified'}]: {entry[sub]['source']}" in out
@@ -184,7 +184,7 @@ def test_materials_lists_each_key_with_the_unverified_tables_its_default_model_r
     toml = _library_toml()
     for key in known_keys():
         model = library.default_model(key)
-        subs = {_read_from(toml[key], name) for name in model_of(model).constants}
+        subs = {_read_from(toml[key], name, model) for name in model_of(model).constants}
         unverified = [sub for sub, t in toml[key].items() if sub in subs and not t["verified"]]
         assert lines[key].split()[1] == model
         assert lines[key].split(None, 2)[2].strip() == (", ".join(unverified) or "-"), key

@@ -157,10 +157,11 @@ def _entry(key: str) -> dict:
     return table[key]
 
 
-def constant_origins(key: str) -> dict[str, tuple[float, str]]:
+def constant_origins(key: str, model: str | None = None) -> dict[str, tuple[float, str]]:
     """Every constant the library holds for `key`, under the names the model kinds use, with the
     sub-table it is read from: name -> (value, sub-table). A value derived from others (a fluid's
-    bulk modulus at rest) names the sub-table of its inputs."""
+    bulk modulus at rest) names the sub-table of its inputs. With a `model` whose EOS is 'tait',
+    the tait sub-table's own rho0 and p0 come first (its fit's reference state)."""
     entry = _entry(key)
     eos = entry["eos"]
     pool: dict[str, tuple[float, str]] = {}
@@ -170,6 +171,8 @@ def constant_origins(key: str) -> dict[str, tuple[float, str]]:
                 pool.setdefault(k, (float(v), sub))
     if "tait" in entry:
         pool["tait_n"], pool["tait_B"] = (float(entry["tait"]["n"]), "tait"), (float(entry["tait"]["B"]), "tait")
+        if isinstance(model, str) and model.split("+")[0] == "tait":
+            pool.update({k: (float(entry["tait"][k]), "tait") for k in ("rho0", "p0") if k in entry["tait"]})
     if "elastic" not in entry:       # fluids: bulk modulus at rest for linear_fluid
         if eos["model"] == "ideal_gas":
             pool["K"] = (eos["gamma"] * eos["p0"], "eos")
@@ -178,9 +181,10 @@ def constant_origins(key: str) -> dict[str, tuple[float, str]]:
     return pool
 
 
-def library_constants(key: str) -> dict[str, float]:
-    """Every constant the library holds for `key`, under the names the model kinds use."""
-    return {k: v for k, (v, _) in constant_origins(key).items()}
+def library_constants(key: str, model: str | None = None) -> dict[str, float]:
+    """Every constant the library holds for `key`, under the names the model kinds use (for `model`:
+    `constant_origins`)."""
+    return {k: v for k, (v, _) in constant_origins(key, model).items()}
 
 
 def table_provenance(key: str) -> dict[str, tuple[str, bool, dict]]:
@@ -194,7 +198,7 @@ def table_provenance(key: str) -> dict[str, tuple[str, bool, dict]]:
 
 def default_model(key: str) -> str:
     """The full model kind of a library key (module docstring)."""
-    entry = library_table()[key]
+    entry = _entry(key)
     parts = [entry["eos"]["model"]]
     strength = entry.get("strength", {}).get("model")
     if strength == "johnson_cook":
@@ -214,8 +218,8 @@ def library_material(key: str, model: str | None = None, new_key: str | None = N
     and `overrides` on top; named `new_key` (default: key)."""
     from jaxmpm.materials.models import model_of
 
-    pool = library_constants(key)
     model = default_model(key) if model is None else model
+    pool = library_constants(key, model)
     name = key if new_key is None else new_key
     needed = model_of(model).constants if isinstance(model, str) else {}
     missing = sorted(k for k in needed if k not in pool and k not in overrides)
