@@ -17,6 +17,7 @@ same call, and `jaxmpm.distributed.to_host` gathers the results.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from jaxmpm.compile import jit
 from jaxmpm.params import Params, check_params
-from jaxmpm.simulate import check_t_end, checkpoint_mode, count, plan_steps, seconds, simulate
+from jaxmpm.simulate import _progress_bar, check_t_end, checkpoint_mode, count, plan_steps, seconds, simulate
 from jaxmpm.state import check_state
 
 
@@ -117,31 +118,44 @@ def _as_member(i, check, *args):
 REPLANS = 2   # how many times `ensemble` runs a batch again when its own plan of n_steps falls short
 
 
-def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B):
-    """The vmapped fixed-length runs of a batch (state batched), split across devices if shard."""
-    checkpoint = checkpoint_mode(checkpoint, member(state, 0), n_steps, copies=B)
-
+@functools.lru_cache(maxsize=16)
+def _members_fn(scene, t_end, n_out, n_steps, checkpoint, progress):
+    """The jitted, vmapped fixed-length run of one batch's members (compiled once per setting, not
+    once per call)."""
     def one(p, s):
-        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint)
+        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint,
+                        _report=progress)
 
+    return jit(jax.vmap(one))
+
+
+def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B, progress=False):
+    """The vmapped fixed-length runs of a batch (state batched), split across devices if shard;
+    progress: a bar of the members' steps."""
+    checkpoint = checkpoint_mode(checkpoint, member(state, 0), n_steps, copies=B)
     if shard:
         (params_batch, state), m = _shard((params_batch, state), B)
-    final, history = jit(jax.vmap(one))(params_batch, state)
+    n_per_out = max(1, math.ceil(n_steps / n_out))
+    with _progress_bar(n_per_out * n_out, f"{scene.name} x{B}", progress):
+        final, history = _members_fn(scene, float(t_end), n_out, n_steps, checkpoint, progress)(params_batch, state)
+        if progress:
+            jax.block_until_ready(final)
     if shard and m != B:
         final, history = jax.tree.map(lambda a: a[:B], (final, history))
     return final, history
 
 
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
-             checkpoint=False, shard=True, allow_short=False):
+             checkpoint=False, shard=True, allow_short=False, progress=True):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
     Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
     per member (default: the most any member's CFL step needs, planned on the host). checkpoint:
     as in `simulate` ("auto" counts the stored states of all B members). shard: split
-    the batch across all devices when more than one exists. The members' results equal their
-    single runs with the same n_steps (tests).
+    the batch across all devices when more than one exists. progress: a bar of the steps run (all
+    members advance together). The members' results equal their single runs with the same n_steps
+    (tests).
 
     A member whose CFL step shrinks during the run may not reach t_end in n_steps. Where ensemble
     planned n_steps itself, it then runs the batch again with more steps (a RuntimeWarning says
@@ -172,7 +186,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
                       for i, p in enumerate(members))
     if not batched_state:
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
-    final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B)
+    final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B,
+                                  progress)
     from jaxmpm.distributed import to_host
     t0 = to_host(state.t)
     reached = to_host(final.t)                  # gathered where the batch spans several processes
@@ -191,7 +206,8 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
                       f"t_end = {t_end:g} s (the CFL step shrank during the run): running the batch again with "
                       f"n_steps = {replanned}; pass n_steps to fix it", RuntimeWarning, stacklevel=2)
         n_steps = replanned
-        final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B)
+        final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B,
+                                      progress)
         reached = to_host(final.t)
         short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
     if short.size and not allow_short:

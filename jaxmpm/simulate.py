@@ -12,6 +12,7 @@ Two drivers share one step:
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import numbers
@@ -250,25 +251,77 @@ def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
     raise ValueError(f"checkpoint = {checkpoint!r} is invalid: allowed False, True (= 'nested'), 'steps', 'nested' or 'auto'")
 
 
+# The progress bar of the fixed-length run in flight (`_fixed_fn` with report=True), fed by
+# jax.debug.callback from inside the compiled scan: steps done, counted on the host.
+_PROGRESS = {"bar": None}
+REPORTS = 100           # progress updates per fixed-length run, at most
+
+
+def _report_steps(done):
+    bar = _PROGRESS["bar"]
+    done = int(np.max(np.asarray(done)))        # the same count from every member or device
+    if bar is None:
+        return
+    if not _PROGRESS.get("running"):            # the first report: compiling is over, the clock starts
+        bar.reset(total=bar.total)
+        bar.set_postfix_str("running")
+        _PROGRESS["running"] = True
+    if done > bar.n:
+        bar.update(done - bar.n)
+
+
+@contextlib.contextmanager
+def _progress_bar(total: int, desc: str, enabled: bool):
+    """A tqdm bar of `total` steps that `_fixed_fn(..., report=True)` advances while it runs."""
+    if not enabled:
+        yield
+        return
+    from tqdm.auto import tqdm
+
+    _PROGRESS["bar"] = tqdm(total=total, unit="step", desc=desc, postfix="compiling")
+    _PROGRESS["running"] = False
+    try:
+        yield
+    finally:
+        _PROGRESS["bar"].close()
+        _PROGRESS["bar"] = None
+
+
 @functools.lru_cache(maxsize=32)
-def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None):
+def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint (`checkpoint_mode`):
     False: reverse mode stores every step's intermediates (memory ~ n_out n_per_out steps'
     residuals, MiB each); "steps": each step under jax.checkpoint, its input state stored and the
     step recomputed in reverse (memory ~ n_out n_per_out states); "nested": `_nested_scan`,
-    memory ~ n_out + 2 sqrt(n_per_out) states for one more forward pass."""
+    memory ~ n_out + 2 sqrt(n_per_out) states for one more forward pass. report: tell the host
+    the steps done (`_report_steps`) up to REPORTS times (nested: after each interval)."""
     step = _step_of(scene, mesh)
+    every = max(1, (n_per_out * n_out) // REPORTS)
+
+    def tell(done, now):
+        jax.lax.cond(now, lambda: jax.debug.callback(_report_steps, done), lambda: None)
 
     @jit
     def run(params, state, times, dt):
-        def inner(s, t_stop):
+        def inner(s, out):
+            t_stop, k = out
             if checkpoint == "nested":
                 s = _nested_scan(jax.checkpoint(step), n_per_out, params, s, t_stop, dt)
+                if report:
+                    tell((k + 1) * n_per_out, True)
             else:
                 one = jax.checkpoint(step) if checkpoint == "steps" else step
-                s = jax.lax.scan(lambda s2, _: (one(params, s2, t_stop, dt), None), s, None, length=n_per_out)[0]
+
+                def body(s2, i):
+                    s2 = one(params, s2, t_stop, dt)
+                    if report:
+                        done = k * n_per_out + i + 1
+                        tell(done, (done % every == 0) | (i == n_per_out - 1))
+                    return s2, None
+
+                s = jax.lax.scan(body, s, jnp.arange(n_per_out))[0]
             return s, s
-        return jax.lax.scan(inner, state, times)
+        return jax.lax.scan(inner, state, (times, jnp.arange(n_out)))
 
     return run
 
@@ -317,7 +370,7 @@ def find_nonfinite(scene, state):
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
              progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False,
-             mesh=None, overwrite=False, allow_short=False):
+             mesh=None, overwrite=False, allow_short=False, _report=None):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -326,7 +379,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
       host cannot plan (use `plan_steps` outside). Outside them, a run whose n_steps do not reach
       t_end (by more than half a step) raises a RuntimeError naming the time reached, unless
-      allow_short (then check final.t). progress: tqdm bar (host driver only).
+      allow_short (then check final.t). progress: a tqdm bar of simulated time (host driver), or of
+      steps (n_steps given, outside jit/grad/vmap; `ensemble` draws one for its batch).
     checkpoint: how reverse mode through the fixed-length driver bounds its memory.
       False: no checkpointing; every step's intermediates are stored (MiB per step: short runs only).
       "steps": each step recomputed once in reverse from its stored input state: memory grows as
@@ -379,7 +433,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         state = distributed.to_shards(scene, state, mesh)
     t0 = None if traced else float(state.t)
     final, history = _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk,
-                          restart_file, restart_every, debug, traced, mesh)
+                          restart_file, restart_every, debug, traced, mesh, _report)
     if n_steps is not None and not traced and not allow_short:
         _check_reached(scene, final.t, t0, t_end, n_steps)
     if mesh is None:
@@ -398,7 +452,9 @@ def _check_reached(scene, t, t0, t_end, n_steps):
 
 
 def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk, restart_file, restart_every,
-         debug, traced, mesh):
+         debug, traced, mesh, report=None):
+    """report: whether the fixed-length driver tells a progress bar its steps (None: where progress
+    is on outside jit/grad/vmap; `ensemble` sets it for its vmapped members and draws the bar)."""
     dtype = state.t.dtype
     dt_arr = None if dt is None else jnp.asarray(dt, dtype)
     if traced or n_steps is not None:
@@ -408,7 +464,11 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
         n_per_out = max(1, math.ceil(int(n_steps) / n_out))
         t0 = state.t
         times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
-        final, hist = _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh)(params, state, times, dt_arr)
+        report = (progress and not traced) if report is None else report
+        with _progress_bar(n_per_out * n_out, scene.name, report and not traced):
+            final, hist = _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh, report)(params, state, times, dt_arr)
+            if report:
+                jax.block_until_ready(final)
         history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
         return final, history
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):

@@ -161,6 +161,24 @@ def test_coarse_cloud_slows_the_projectile_rear_below_the_front(ch_sweep):
     assert v[0, 2] < min(v[0, 0], v[0, 1]) - 0.3, v[0]
 
 
+def test_ensemble_shows_its_steps_and_compiles_once_per_setting(capsys):
+    """progress (the default) draws a bar of the batch's steps, counted from inside the compiled
+    run, and changes no result; a second call with the same setting does not compile again."""
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25)
+    params = jaxmpm.default_params(scene)
+    batch = jaxmpm.batch.sweep(params, cfl=[0.2, 0.3])
+    capsys.readouterr()
+    shown, _ = jaxmpm.ensemble(scene, batch, t_end=0.2, n_out=2, n_steps=40)
+    err = capsys.readouterr().err
+    assert "elastic_impact x2" in err and "40/40" in err
+    quiet, _ = jaxmpm.ensemble(scene, batch, t_end=0.2, n_out=2, n_steps=40, progress=False)
+    assert "40/40" not in capsys.readouterr().err
+    np.testing.assert_array_equal(np.asarray(shown.x), np.asarray(quiet.x))
+    before = jaxmpm.batch._members_fn.cache_info().hits
+    jaxmpm.ensemble(scene, jaxmpm.batch.sweep(params, cfl=[0.25, 0.15]), t_end=0.2, n_out=2, n_steps=40, progress=False)
+    assert jaxmpm.batch._members_fn.cache_info().hits == before + 1
+
+
 def test_ensemble_names_a_member_that_falls_short_of_t_end():
     scene, params, s0 = _small_cloud()
     batch = jaxmpm.batch.sweep(params, c_h=[0.02, 0.15])
