@@ -131,9 +131,15 @@ def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
     CFL step at `state`, times `safety` >= 1). Call it outside jit/grad/vmap and pass it as
     `n_steps`."""
-    span = check_t_end(t_end, state.t) - float(state.t)
     check_params(scene, params)
     check_state(scene, state)
+    return _planned_steps(scene, params, state, t_end, dt, safety)
+
+
+def _planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
+    """`plan_steps` for params and state already checked (the host driver's, whose state may span
+    several processes, where check_state cannot read it)."""
+    span = check_t_end(t_end, state.t) - float(state.t)
     if dt is not None:
         dt = seconds("dt", dt)
         if not (math.isfinite(dt) and dt > 0):
@@ -482,7 +488,7 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
-        est = plan_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
+        est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000))
     run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
