@@ -22,8 +22,8 @@ def run(fluid, t_end):
 def test_projectile_in_water_conserves_mass_and_momentum_before_it_reaches_the_block():
     """Mass exact. Axial momentum changes only by the walls' impulse: the water starts at 1 atm
     and the concrete at 0, so the top wall (z = 46.7 mm, over the whole radius R = 40 mm) pushes
-    the system down with p0 R^2 / 2 per radian: after 1 us the change is that impulse within 3%
-    (measured 1.5%). Later the rarefaction behind the projectile's tail (6.7 mm below the wall)
+    the system down with p0 R^2 / 2 per radian: at the first output (0.83 us) the change is that
+    impulse within 3% (measured 1.5% at 1 us). Later the rarefaction behind the projectile's tail (6.7 mm below the wall)
     lowers the pressure on it, which then pulls: at 10 us (the projectile still 5 mm above the
     block) the change is -0.38% of the projectile's momentum. The projectile has slowed
     (measured 500 -> 477 m/s)."""
@@ -32,8 +32,7 @@ def test_projectile_in_water_conserves_mass_and_momentum_before_it_reaches_the_b
     assert float(final.mass.sum()) == float(s0.mass.sum())
     pz = lambda s: float((s.mass * s.v[:, 1]).sum())
     assert pz(final) == pytest.approx(pz(s0), rel=0.01)
-    params = jaxmpm.default_params(scene)
-    early, _ = jaxmpm.simulate(scene, params, s0, t_end=1e-6, n_out=1, progress=False)
+    early = jax.tree.map(lambda a: a[1], history)                 # the first output, at 0.83 us
     water = next(p for p in scene.phases if p.name == "water")
     p0, R = scene.material(water).as_dict()["p0"], scene.grid.hi[0]
     assert scene.boundary.kind(1, "hi") == "slip" and scene.grid.origin[0] == 0.0
