@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-import numbers
 import os
 
 import jax
@@ -24,132 +23,15 @@ import numpy as np
 
 from jaxmpm.compile import jit
 from jaxmpm.params import check_params
+# the run's arguments and step plan (jaxmpm.planning), importable from here as before
+from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
+                             count as count, plan_steps as plan_steps, seconds)
 from jaxmpm.state import check_state, phase_slices
 from jaxmpm.step import cfl_time_step, make_step
 
 
 def _traced(tree) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
-
-
-def count(name: str, value, minimum: int = 1) -> int:
-    """An integer >= minimum given as an integer, an integral float or a string of digits;
-    ValueError naming the argument for anything else (a fraction is not truncated)."""
-    if not isinstance(value, bool):
-        if isinstance(value, str):
-            try:
-                value = int(value.strip())
-            except ValueError:
-                pass
-        if isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer()):
-            if int(value) >= minimum:
-                return int(value)
-    raise ValueError(f"{name} = {value!r} is invalid: allowed an integer >= {minimum}")
-
-
-def check_t_end(t_end, t0) -> float:
-    """t_end (s) as a float, finite and after the start time t0 (s)."""
-    try:
-        t_end = float(t_end)
-    except (TypeError, ValueError):
-        raise ValueError(f"t_end = {t_end!r} is invalid: allowed a number of seconds > state.t = {float(t0)} s") from None
-    if not (math.isfinite(t_end) and t_end > float(t0)):
-        raise ValueError(f"t_end = {t_end!r} is invalid: allowed a finite time > state.t = {float(t0)} s")
-    return t_end
-
-
-def seconds(name: str, value) -> float:
-    """A time argument (s) as a float; ValueError naming it where it is not a number."""
-    try:
-        if isinstance(value, bool):
-            raise TypeError
-        return float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is invalid: allowed a number of seconds") from None
-
-
-def host_cfl_step(scene, params, state, cfl=None, checked=False) -> float:
-    """cfl_time_step (s) at `state` as a float, outside jit: params and state checked first (unless
-    `checked`), and a ValueError where the step is not a finite time > 0 (a speed that overflows
-    the dtype, or a wave speed that is not finite), instead of a plan of zero or infinite steps."""
-    if not checked:
-        check_params(scene, params)
-        check_state(scene, state)
-    dt = float(cfl_time_step(scene, params, state, cfl))
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"the CFL time step at t = {float(state.t):g} s is {dt!r}: allowed a finite time > 0 s; a "
-                         f"particle or wave speed is not finite or too large for {np.asarray(state.v).dtype} (largest "
-                         f"velocity component: {float(np.abs(np.asarray(state.v)).max()):g} m/s; h = {scene.grid.h:g} m)")
-    return dt
-
-
-def cfl_limit(scene, params, state) -> float:
-    """The largest stable dt (s) at `state` for CFL = 1: h / max_p (c_p + |v_p|)."""
-    return host_cfl_step(scene, params, state, cfl=1.0)
-
-
-def check_dt(scene, params, state, dt) -> None:
-    """ValueError if a user-given dt exceeds the CFL limit params.cfl * h / max(c + |v|)."""
-    limit = host_cfl_step(scene, params, state, checked=True)
-    if not dt > 0:
-        raise ValueError(f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})")
-    if dt > limit * (1 + 1e-12):
-        raise ValueError(f"dt = {dt:.6g} s is above the CFL limit: allowed (0, {limit:.6g}] s "
-                         f"(cfl = {float(params.cfl):g}, h = {scene.grid.h:g} m)")
-
-
-NUMBERS_PER_NODE = 16     # a lower bound: a step holds far more per node and velocity field than this
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available to new allocations (Linux /proc/meminfo), or None where unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
-def check_memory(scene, state) -> None:
-    """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
-    numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
-    guess (a larger grid can still run out of memory later)."""
-    avail = available_memory()
-    nodes = math.prod(c + 1 for c in scene.grid.cells)
-    need = nodes * scene.n_fields * NUMBERS_PER_NODE * np.asarray(state.x).dtype.itemsize
-    if avail is not None and need > avail:
-        raise ValueError(f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
-                         f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
-                         "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)")
-
-
-def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
-    """Number of scan steps that reach t_end (s): (t_end - t) / dt with a safety margin for the CFL
-    step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
-    CFL step at `state`, times `safety` >= 1). Call it outside jit/grad/vmap and pass it as
-    `n_steps`."""
-    check_params(scene, params)
-    check_state(scene, state)
-    return _planned_steps(scene, params, state, t_end, dt, safety)
-
-
-def _planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
-    """`plan_steps` for params and state already checked (the host driver's, whose state may span
-    several processes, where check_state cannot read it)."""
-    span = check_t_end(t_end, state.t) - float(state.t)
-    if dt is not None:
-        dt = seconds("dt", dt)
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt = {dt!r} is invalid: allowed a finite time step > 0 s")
-        check_dt(scene, params, state, dt)
-        return max(1, math.ceil(span / dt * (1 + 1e-9)))
-    if isinstance(safety, bool) or not (isinstance(safety, numbers.Real) and math.isfinite(safety) and safety >= 1):
-        raise ValueError(f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
-                         "at the initial CFL step)")
-    return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
 
 
 def _stack(states):
