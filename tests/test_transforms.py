@@ -102,26 +102,38 @@ def test_host_driver_equals_fixed_scan(small):
     np.testing.assert_allclose(np.asarray(ha.t), [0.0, 0.5, 1.0, 1.5], rtol=1e-12)
 
 
+def _checkpointed_loss(small, checkpoint):
+    """E -> (a loss of the final state and of an output, the final time) for the small scene with
+    both disks' E set, 14 steps in 2 outputs."""
+    scene, params, state = small
+
+    def run(E):
+        p = params.with_constant("disk_a", "E", E).with_constant("disk_b", "E", E)
+        final, hist = jaxmpm.simulate(scene, p, state, t_end=1.5, n_out=2, n_steps=14, checkpoint=checkpoint)
+        return jnp.sum(final.mass * final.x[:, 0] * final.x[:, 1]) + jnp.sum(hist.stress[1, :, 0, 0]) * 1e-3, final.t
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def plain_scan_gradient(small):
+    """((loss, final time), d loss / dE) of the plain scan, the reference of every mode below."""
+    return jax.value_and_grad(_checkpointed_loss(small, False), has_aux=True)(1000.0)
+
+
 # True and "auto" run the programs of "nested" and "steps" (checkpoint_mode: the test below), so
 # they are in the slow set
 @pytest.mark.parametrize("mode", [pytest.param(True, marks=pytest.mark.slow), "nested", "steps",
                                   pytest.param("auto", marks=pytest.mark.slow)])
-def test_checkpointing_gives_the_same_run_and_gradient(small, mode):
+def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradient, mode):
     """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
     the last two steps padding), "steps" (each step recomputed from its stored input) and "auto"
     equal the plain scan: the same result and the same gradient to round-off."""
     from jaxmpm.simulate import nested_sizes
 
-    scene, params, state = small
     assert nested_sizes(7) == (3, 3) and nested_sizes(9) == (3, 3) and nested_sizes(1) == (1, 1)
-
-    def run(E, checkpoint):
-        p = params.with_constant("disk_a", "E", E).with_constant("disk_b", "E", E)
-        final, hist = jaxmpm.simulate(scene, p, state, t_end=1.5, n_out=2, n_steps=14, checkpoint=checkpoint)
-        return jnp.sum(final.mass * final.x[:, 0] * final.x[:, 1]) + jnp.sum(hist.stress[1, :, 0, 0]) * 1e-3, final.t
-
-    (a, ta), ga = jax.value_and_grad(lambda E: run(E, mode), has_aux=True)(1000.0)
-    (b, tb), gb = jax.value_and_grad(lambda E: run(E, False), has_aux=True)(1000.0)
+    (a, ta), ga = jax.value_and_grad(_checkpointed_loss(small, mode), has_aux=True)(1000.0)
+    (b, tb), gb = plain_scan_gradient
     assert float(ta) == float(tb) and float(ta) < 1.5          # falls short of t_end: padding must not step
     np.testing.assert_allclose(float(a), float(b), rtol=1e-13)
     assert float(gb) != 0.0
