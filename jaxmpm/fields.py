@@ -169,8 +169,10 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min):
 
 
 def ambient_pressure(theta, kappa, P):
-    """Common pressure (E6) of the OTHER fields at each node, (K, n): the ambient pressure the
-    fragmented part of field k relaxes to (E8); 0 where no other field is present."""
+    """Common pressure (E6) of the OTHER groups at each node, (K, n) Pa, for nodal volume fractions
+    theta, compressibilities kappa (1/Pa) and pressures P (Pa) of K groups, each (K, n): the
+    ambient pressure the fragmented part of group k relaxes to (E8), with the groups the phases
+    (or the velocity fields, where each holds one phase); 0 where no other group is present."""
     tk = theta * kappa
     num = jnp.sum(tk * P, 0)[None] - tk * P
     den = jnp.sum(tk, 0)[None] - tk

@@ -33,7 +33,8 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
     minus the mass-fraction share of the net, so they sum to zero at each node. Returns
     (I, p_amb, volume_rate): the ambient pressure of each field (the common pressure of the
-    others, (K, n_nodes)) for the closure (E8), or None without it; with the continuity form
+    others, (K, n_nodes)) for the closure (E8) where every field holds one phase (`Layout.
+    ambient_by_field`; else `ambient_pressure_by_phase` forms it), or None; with the continuity form
     (E7) the function v (K, n_nodes, d) -> (N,) 1/s of `continuity_volume_rate` at this step, else
     None. With the continuity form I and volume_rate come from one linearisation of the particle
     pressures -> I map (`jax.vjp`), so the map's forward pass (a scatter of the pressures, the
@@ -51,9 +52,26 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
         mom, volume_rate = g["pm"], None
         I = interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
     p_amb = None
-    if lay.scene.c_h is not None:
+    if lay.scene.c_h is not None and lay.ambient_by_field:
         p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, mom, dtype))
     return I, p_amb, volume_rate
+
+
+def ambient_pressure_by_phase(lay, params, st, state):
+    """(E8) the closure's ambient pressure at each particle, (N,) Pa: the common pressure (E6) of
+    the OTHER phases at the particle's nodes, interpolated; 0 where no other phase is present.
+    Formed from one scatter onto a grid per phase of the volume, the compressibility volume and
+    the nodal pressure's moments (as the interface forces scatter them per field), so that it does
+    not depend on how the phases are grouped into velocity fields: phases sharing a field are
+    each other's ambient as phases in fields of their own are. Needs >= 2 phases."""
+    dtype = state.mass.dtype
+    p, kappa = phase_pressure_and_compressibility(lay, params, state)
+    V = state.volume
+    w = st.w[..., None]
+    g = scatter_named(lay, st, {"vol": w * V[:, None, None], "kvol": w * (V * kappa)[:, None, None],
+                                "pm": pressure_moments(lay, st, p, V)}, by_phase=True)
+    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g["pm"], dtype))      # (n_phases, n_nodes)
+    return interpolate(st, lay.phase, p_amb[..., None])[:, 0]
 
 
 def pressure_moments(lay, st, pressure, volume):

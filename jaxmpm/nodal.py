@@ -20,11 +20,13 @@ def grid_shape(lay):
     return (lay.n_fields,) + tuple(lay.scene.grid.nodes)
 
 
-def scatter_named(lay, st, parts):
-    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}."""
+def scatter_named(lay, st, parts, by_phase=False):
+    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}, K
+    the velocity fields; by_phase: onto one grid per phase instead (K the phases)."""
     names = list(parts)
     sizes = [parts[k].shape[-1] for k in names]
-    g = lay.particle_sum(scatter(st, lay.field, jnp.concatenate([parts[k] for k in names], -1), lay.n_fields, lay.n_nodes))
+    index, count = (lay.phase, lay.n_phases) if by_phase else (lay.field, lay.n_fields)
+    g = lay.particle_sum(scatter(st, index, jnp.concatenate([parts[k] for k in names], -1), count, lay.n_nodes))
     out, i = {}, 0
     for k, c in zip(names, sizes):
         out[k] = g[..., i:i + c]

@@ -19,7 +19,8 @@ import numpy as np
 
 from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
-from jaxmpm.multifield import exchange_force, interface_force, phase_pressure_and_compressibility, pressure_moments
+from jaxmpm.multifield import (ambient_pressure_by_phase, exchange_force, interface_force, phase_pressure_and_compressibility,
+                               pressure_moments)
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.shapes import ddmp_beta, stencil
 from jaxmpm.state import phase_slices
@@ -38,6 +39,20 @@ class Layout:
     slices: tuple                    # per phase
     bc_mask: np.ndarray | None       # (n_nodes, d) 1 where a velocity component is free, None if no walls
     axis_name: str | None = None     # the mesh axis the particles are split along (jaxmpm.distributed), or None
+    phase: np.ndarray | None = None  # (N,) phase index per particle, None with one phase
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.scene.phases)
+
+    @property
+    def ambient_by_field(self) -> bool:
+        """Whether the closure's ambient pressure (E8, the common pressure of the OTHER phases)
+        can be formed per velocity field from the interface forces' nodal quantities: every field
+        holds one phase and the scene scatters those quantities. Otherwise it is formed per phase
+        from a scatter of its own (`multifield.ambient_pressure_by_phase`)."""
+        fields_of = [p.field for p in self.scene.phases]
+        return self.scene.has_interface_forces and len(set(fields_of)) == len(fields_of)
 
     @staticmethod
     def of(scene, shards=1, axis_name=None) -> "Layout":
@@ -49,8 +64,10 @@ class Layout:
         starts = np.concatenate([[0], np.cumsum(local)]).astype(int)
         slices = tuple(slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:]))
         field = np.concatenate([np.full(c, p.field, np.int32) for p, c in zip(scene.phases, local)]) if K > 1 else None
+        phase = (np.concatenate([np.full(c, i, np.int32) for i, c in enumerate(local)])
+                 if len(scene.phases) > 1 else None)
         return Layout(scene=scene, dim=scene.dim, n_fields=K, n_nodes=scene.grid.n_nodes, field=field,
-                      slices=slices, bc_mask=boundary_mask(scene), axis_name=axis_name)
+                      slices=slices, bc_mask=boundary_mask(scene), axis_name=axis_name, phase=phase)
 
     def particle_sum(self, x):
         """A sum over particles completed across the devices: x is a scatter's nodal result
@@ -312,6 +329,8 @@ def seed_update(lay, params, state, dt):
         v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
     with jax.named_scope(STAGES[3]):                                               # 4
         p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
+        if scene.c_h is not None and lay.n_phases > 1 and not lay.ambient_by_field:
+            p_amb = ambient_pressure_by_phase(lay, params, st, state)                   # (E8)
         if scene.transfer == "musl":
             v = state.v + dt * interpolate(st, lay.field, a_n)
             vol_n = g["vol"][..., 0] if "vol" in g else None
@@ -382,7 +401,10 @@ def apic_update(lay, params, state, dt):
         v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
         moved = replace(state, x=state.x + dt * v, v=v, C=C)
     with jax.named_scope(STAGES[4]):
-        new = constitutive(lay, params, moved, C, dt)
+        p_amb = None
+        if scene.c_h is not None and lay.n_phases > 1:                                   # (E8)
+            p_amb = ambient_pressure_by_phase(lay, params, stencil(scene, state.x), state)
+        new = constitutive(lay, params, moved, C, dt, p_amb)
     return replace(moved, t=state.t + dt, **new)
 
 

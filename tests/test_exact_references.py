@@ -78,6 +78,61 @@ def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_fields():
     assert amb[1, 3] == 0.0                                          # water alone: vacuum around it
 
 
+@pytest.mark.parametrize("continuity", ["off", "transport"])
+def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_fields(continuity):
+    """(E8) names the other PHASES. A rock block half inside a gas layer, random particle pressures:
+    the ambient pressure at every particle is the same from the interface forces' per-field nodal
+    quantities (two fields, one phase each: the grid update's own result), from the per-phase
+    scatter in that layout, and (continuity 'off': both use E15's fit; a one-field scene has no
+    continuity form) from the per-phase scatter with both phases in one field. The ambient is not
+    0 where the phases overlap, and 0 where the rock is alone."""
+    import dataclasses
+
+    from jaxmpm.multifield import ambient_pressure_by_phase
+    from jaxmpm.scene import Box, Phase, Scene
+    from jaxmpm.shapes import ddmp_beta, stencil
+    from jaxmpm.step import Layout, _mass_floor, grid_acceleration, particle_to_grid
+
+    rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
+    gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=10.0, K=1.0e7)
+
+    def scene(gas_field):
+        return Scene(grid=Grid(cells=(12, 12), h=0.1), materials=(rock, gas), c_h=0.01,
+                     continuity=continuity if gas_field else "off",
+                     phases=(Phase("rock", "rock", Box((0.3, 0.3), (0.7, 0.7)), field=0, fraction=0.6),
+                             Phase("gas", "gas", Box((0.2, 0.5), (1.0, 0.9)), field=gas_field, fraction=0.4)),
+                     drag=1.0 if gas_field else None)
+
+    two, one = scene(1), scene(0)
+    params = jaxmpm.default_params(two)
+    s = jaxmpm.init_state(two, params)
+    rng = np.random.default_rng(3)
+    p = jnp.asarray(rng.uniform(-1e5, 2e6, s.x.shape[0]))
+    s = dataclasses.replace(s, stress=-p[:, None, None] * jnp.eye(2))
+    lay2, lay1 = Layout.of(two), Layout.of(one)
+    assert lay2.ambient_by_field and not lay1.ambient_by_field
+
+    @jax.jit
+    def ambients(params, s):
+        st = stencil(two, s.x)
+        beta = ddmp_beta(st.xi)
+        g = particle_to_grid(lay2, params, st, s, beta)
+        p_amb_n = grid_acceleration(lay2, params, s, st, beta, g, None, jnp.asarray(1e-6), _mass_floor(lay2, s))[3]
+        return (transfer.interpolate(st, lay2.field, p_amb_n[..., None])[:, 0],
+                ambient_pressure_by_phase(lay2, params, st, s), ambient_pressure_by_phase(lay1, params, st, s))
+
+    by_field, by_phase_two, by_phase_one = (np.asarray(a) for a in ambients(params, s))
+    scale = float(jnp.max(jnp.abs(p)))
+    np.testing.assert_allclose(by_phase_two, by_field, rtol=0, atol=1e-12 * scale)
+    if continuity == "off":
+        np.testing.assert_allclose(by_phase_one, by_field, rtol=0, atol=1e-12 * scale)
+    rock_sl = jaxmpm.state.phase_slices(two)[0]
+    x = np.asarray(s.x[rock_sl])
+    amb = by_field[rock_sl]
+    assert np.all(amb[x[:, 1] < 0.4] == 0.0)              # two cells below the gas: vacuum around it
+    assert np.all(np.abs(amb[x[:, 1] > 0.55]) > 1e3)      # inside the gas
+
+
 # ---------------------------------------------------------------------- E15: the linear fit
 def fitted_and_averaged(grid, x, field, p, V, n_fields):
     """Nodal phase pressures (K, n_nodes) of the E15 fit, by the package's pipeline (linear-hat
