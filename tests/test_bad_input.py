@@ -117,6 +117,9 @@ CASES = [
      r"phase\.b\.material = 'unobtainium' is an unknown material key: known keys are \[.*'al2024'"),
     # --- materials
     ("negative density", lambda: Material.make("x", "hypoelastic", rho0=-1.0, E=1e6, nu=0.3), r"materials\.x\.rho0 = -1\.0 is invalid: allowed \(0, inf\) kg/m\^3"),
+    ("negative density, plain constructor", lambda: Material("x", "hypoelastic", (("rho0", -1.0), ("E", 1e6), ("nu", 0.3))), r"materials\.x\.rho0 = -1\.0 is invalid: allowed \(0, inf\) kg/m\^3"),
+    ("constants not (name, value) pairs", lambda: Material("x", "hypoelastic", (1000.0, 1e6, 0.3)), r"materials\.x\.constants = .* is invalid: allowed a tuple of \(name, value\) pairs"),
+    ("a constant given twice", lambda: Material("x", "hypoelastic", (("rho0", 1.0), ("E", 1e6), ("nu", 0.3), ("E", 2e6))), r"materials\.x\.E is given twice: allowed each constant once"),
     ("zero Young's modulus", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=0.0, nu=0.3), r"materials\.x\.E = 0\.0 is invalid: allowed \(0, inf\) Pa"),
     ("Poisson's ratio 0.5", lambda: Material.make("x", "hypoelastic", rho0=1.0, E=1.0, nu=0.5), r"materials\.x\.nu = 0\.5 is invalid: allowed \(-1, 0\.5\)"),
     ("negative relaxation time", lambda: Material.make("x", "maxwell", rho0=1.0, E=1.0, nu=0.3, tau=-1.0), r"materials\.x\.tau = -1\.0 is invalid: allowed \(0, inf\) s"),

@@ -112,8 +112,11 @@ def test_constants_not_in_si_units_warn():
     from jaxmpm import Material
     with pytest.warns(UserWarning, match=r"materials\.al: its wave speed at rest is 1\d\d,\d{3} m/s.*rho0 in kg/m\^3"):
         Material.make("al", "linear_elastic", rho0=2.7, E=70e9, nu=0.3)
-    with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3 is denser than any real material"):
+    with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3 is denser than any real material") as rec:
         Material.make("al", "linear_elastic", rho0=27000.0, E=70e9, nu=0.3)
+    with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3") as rec_plain:
+        Material("al", "linear_elastic", (("rho0", 27000.0), ("E", 70e9), ("nu", 0.3)))
+    assert rec[0].filename == rec_plain[0].filename == __file__            # the line that made it
     with pytest.warns(UserWarning, match=r"materials\.w: its wave speed"):
         Material.make("w", "stiffened_gas", rho0=1.0, gamma=4.4, p_inf=6e8, p0=1e5)
     with warnings.catch_warnings():

@@ -29,11 +29,30 @@ except ModuleNotFoundError:  # Python 3.10
 
 @dataclass(frozen=True)
 class Material:
-    """A material: `key`, model kind and constants (SI) as a tuple of (name, value) pairs."""
+    """A material: `key`, model kind and constants (SI) as a tuple of (name, value) pairs.
+    Validated on construction, however built: `Material("x", "hypoelastic", (("rho0", 1e3), ...))`
+    checks what `Material.make` checks, and stores the constants as floats in sorted order."""
 
     key: str
     model: str
     constants: tuple[tuple[str, float], ...]
+
+    def __post_init__(self):
+        where = f"materials.{self.key}"
+        pairs = self.constants
+        if isinstance(pairs, dict):
+            pairs = tuple(pairs.items())
+        if not (isinstance(pairs, (tuple, list)) and all(isinstance(c, (tuple, list)) and len(c) == 2
+                                                         and isinstance(c[0], str) for c in pairs)):
+            raise ValueError(f"{where}.constants = {self.constants!r} is invalid: allowed a tuple of (name, value) "
+                             "pairs, e.g. (('rho0', 1000.0), ('E', 1e9), ('nu', 0.3)); or use Material.make")
+        names = [c[0] for c in pairs]
+        if len(set(names)) != len(names):
+            dup = sorted({n for n in names if names.count(n) > 1})[0]
+            raise ValueError(f"{where}.{dup} is given twice: allowed each constant once")
+        vals = _checked_constants(self.key, self.model, dict(pairs))
+        object.__setattr__(self, "constants", tuple(vals.items()))
+        warn_implausible_units(where, self.model, vals, stacklevel=_outside_this_module())
 
     @staticmethod
     def make(key: str, model: str, **constants: float) -> "Material":
@@ -42,31 +61,7 @@ class Material:
         each), e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0) or
         Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0). Model kinds:
         jaxmpm.materials.models (one-piece kinds and 'eos[+strength][+failure...]' compositions)."""
-        from jaxmpm.materials.models import check_constant, model_of, split_model, MODELS
-
-        where = f"materials.{key}"
-        if not isinstance(key, str) or not key.isidentifier():
-            raise ValueError(f"materials key {key!r} is invalid: allowed an identifier")
-        if not isinstance(model, str):
-            raise ValueError(f"{where}.model = {model!r} is invalid: allowed a model name")
-        if model not in MODELS:
-            split_model(model, f"{where}.model")
-        needed = model_of(model).constants
-        unknown = sorted(set(constants) - set(needed))
-        if unknown:
-            raise ValueError(f"{where}.{unknown[0]} is not a constant of model {model!r}: allowed {sorted(needed)}")
-        missing = sorted(set(needed) - set(constants))
-        if missing:
-            raise ValueError(f"{where}.{missing[0]} is missing: model {model!r} needs {sorted(needed)}")
-        vals = {}
-        for k in sorted(needed):
-            v = constants[k]
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
-                raise ValueError(f"{where}.{k} = {v!r} is invalid: allowed a number")
-            check_constant(model, k, float(v), f"{where}.{k}")
-            vals[k] = float(v)
-        warn_implausible_units(where, model, vals)
-        return Material(key, model, tuple(vals.items()))
+        return Material(key, model, tuple(constants.items()))
 
     def as_dict(self) -> dict[str, float]:
         return dict(self.constants)
@@ -75,13 +70,54 @@ class Material:
         return {"model": self.model, **self.as_dict()}
 
 
+def _outside_this_module() -> int:
+    """The `stacklevel` of a warning issued two calls below this one's caller that names the first
+    frame outside this module and the dataclass's generated __init__: the user's line that made
+    the Material, by `Material(...)` or `Material.make`."""
+    import sys
+
+    frame, level = sys._getframe(1), 2
+    while frame is not None and frame.f_code.co_filename in (__file__, "<string>"):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def _checked_constants(key, model, constants: dict) -> dict[str, float]:
+    """The constants of a material of `model` as floats in sorted order, each checked against its
+    model's allowed range; a ValueError naming materials.KEY.NAME and what is allowed otherwise."""
+    from jaxmpm.materials.models import check_constant, model_of, split_model, MODELS
+
+    where = f"materials.{key}"
+    if not isinstance(key, str) or not key.isidentifier():
+        raise ValueError(f"materials key {key!r} is invalid: allowed an identifier")
+    if not isinstance(model, str):
+        raise ValueError(f"{where}.model = {model!r} is invalid: allowed a model name")
+    if model not in MODELS:
+        split_model(model, f"{where}.model")
+    needed = model_of(model).constants
+    unknown = sorted(set(constants) - set(needed))
+    if unknown:
+        raise ValueError(f"{where}.{unknown[0]} is not a constant of model {model!r}: allowed {sorted(needed)}")
+    missing = sorted(set(needed) - set(constants))
+    if missing:
+        raise ValueError(f"{where}.{missing[0]} is missing: model {model!r} needs {sorted(needed)}")
+    vals = {}
+    for k in sorted(needed):
+        v = constants[k]
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+            raise ValueError(f"{where}.{k} = {v!r} is invalid: allowed a number")
+        check_constant(model, k, float(v), f"{where}.{k}")
+        vals[k] = float(v)
+    return vals
+
+
 # Above these a material at rest is not a real one: the densest element (osmium) has 22,590 kg/m^3,
 # the fastest longitudinal sound speed (diamond) is about 18 km/s.
 DENSEST = 2.5e4         # kg/m^3
 FASTEST = 2.5e4         # m/s
 
 
-def warn_implausible_units(where: str, model: str, constants: dict) -> None:
+def warn_implausible_units(where: str, model: str, constants: dict, stacklevel: int = 3) -> None:
     """A UserWarning when a material's density or its longitudinal wave speed at rest (at rho0)
     is beyond any real material's: the usual sign of constants not in SI units (rho0 in g/cm^3
     makes the wave speed 32x too fast). Only a warning: scaled, non-dimensional constants are
@@ -97,11 +133,11 @@ def warn_implausible_units(where: str, model: str, constants: dict) -> None:
         c0 = float(np.asarray(m.wave_speed(constants, np.array([rho0]), np.array([float(e0)]), 3))[0])
     if rho0 > DENSEST:
         warnings.warn(f"{where}.rho0 = {rho0:g} kg/m^3 is denser than any real material (osmium: 22,590): "
-                      "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)", UserWarning, stacklevel=3)
+                      "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)", UserWarning, stacklevel=stacklevel)
     if c0 > FASTEST:
         warnings.warn(f"{where}: its wave speed at rest is {c0:,.0f} m/s, faster than any real material's "
                       "(diamond: about 18,000): are the constants in SI units (rho0 in kg/m^3, moduli in Pa)? "
-                      "With rho0 in g/cm^3 the speed comes out 32x too fast", UserWarning, stacklevel=3)
+                      "With rho0 in g/cm^3 the speed comes out 32x too fast", UserWarning, stacklevel=stacklevel)
 
 
 CHECK_FIELDS = ("checked", "read", "derived", "note")
