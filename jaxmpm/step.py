@@ -401,10 +401,7 @@ def apic_update(lay, params, state, dt):
         v, C = v.T, dinv * jnp.transpose(B, (2, 0, 1))
         moved = replace(state, x=state.x + dt * v, v=v, C=C)
     with jax.named_scope(STAGES[4]):
-        p_amb = None
-        if scene.c_h is not None and lay.n_phases > 1:                                   # (E8)
-            p_amb = ambient_pressure_by_phase(lay, params, stencil(scene, state.x), state)
-        new = constitutive(lay, params, moved, C, dt, p_amb)
+        new = constitutive(lay, params, moved, C, dt)      # (Scene refuses the closure, E8, with APIC)
     return replace(moved, t=state.t + dt, **new)
 
 

@@ -104,6 +104,31 @@ def test_fragmented_block_in_pressurised_gas_relaxes_to_the_gas_pressure(gas_fie
     np.testing.assert_allclose(p_debris, p_gas, rtol=0.02)
 
 
+@pytest.mark.parametrize("over_pressure, clipped", [(P0, False), (1.0e10, True), (-1.0e10, True)])
+def test_e8_relaxation_rate_is_the_formula_with_its_strain_clipped_at_one_e_fold(over_pressure, clipped):
+    """(E8) B = (1 - alpha)(p - p_amb) / (K tau), tau = h / c, over the step as the exact exponential
+    (1 - exp(-dt / tau)) / dt, by hand from the model's K and c; where |p - p_amb| / K exceeds
+    EQUILIBRATING_STRAIN_MAX = 1 (here 7.5 either way, in vacuum) the strain is clipped to +-1,
+    so the volume changes by at most one e-fold per relaxation time."""
+    from jaxmpm.constitutive import (EQUILIBRATING_STRAIN_MAX, bulk_modulus_and_wave_speed, closure_alpha,
+                                     material_volume_rate)
+    from jaxmpm.step import Layout
+
+    scene = block(c_h=0.01)
+    params, s = prepared(scene, 1.0, over_pressure)
+    lay = Layout.of(scene)
+    dt = 2e-5
+    rate = np.asarray(material_volume_rate(lay, params, s, jnp.zeros((s.x.shape[0], 1, 1)), dt, jnp.zeros_like(s.mass)))
+    K, c = (np.asarray(a) for a in bulk_modulus_and_wave_speed(lay, params, s))
+    alpha = np.asarray(closure_alpha(lay, params, s))
+    tau = scene.grid.h / c
+    strain = over_pressure / K
+    assert (np.abs(strain) > EQUILIBRATING_STRAIN_MAX).all() == clipped
+    expected = (1 - alpha) * np.clip(strain, -1.0, 1.0) * (1 - np.exp(-dt / tau)) / dt
+    np.testing.assert_allclose(rate, expected, rtol=1e-12)
+    assert float(alpha.max()) < 1e-12 and (dt / tau > 0.5).all()     # fragmented; the exponential matters
+
+
 def test_alpha_is_smooth_and_grad_wrt_c_h_matches_finite_difference():
     scene = block(c_h=0.05, t_end=4e-5)
     params, s0 = prepared(scene, 0.05, P0)              # eps_ps = C_h: alpha depends on C_h
