@@ -61,9 +61,10 @@ def ambient_pressure_by_phase(lay, params, st, state):
     """(E8) the closure's ambient pressure at each particle, (N,) Pa: the common pressure (E6) of
     the OTHER phases at the particle's nodes, interpolated; 0 where no other phase is present.
     Formed from one scatter onto a grid per phase of the volume, the compressibility volume and
-    the nodal pressure's moments (as the interface forces scatter them per field), so that it does
-    not depend on how the phases are grouped into velocity fields: phases sharing a field are
-    each other's ambient as phases in fields of their own are. Needs >= 2 phases."""
+    the nodal pressure's moments (as the interface forces scatter them per field: E15's fit, or the
+    continuity form's averages), so that, at the same estimate of the nodal pressures, it does not
+    depend on how the phases are grouped into velocity fields: phases sharing a field are each
+    other's ambient as phases in fields of their own are. Needs >= 2 phases."""
     dtype = state.mass.dtype
     p, kappa = phase_pressure_and_compressibility(lay, params, state)
     V = state.volume

@@ -208,8 +208,10 @@ def particle_to_grid(lay, params, st, state, beta):
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
     internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
-    Returns (v_old, a, DDMP operators or None, ambient pressure (K, n_nodes) or None, the
-    continuity form's volume rate v -> (N,) (`multifield.interface_force`) or None)."""
+    Returns (v_old, a, DDMP operators or None, the closure's ambient pressure (K, n_nodes) where
+    every field holds one phase and the fields have interface forces (else None: `seed_update`
+    forms it per phase, E8), the continuity form's volume rate v -> (N,)
+    (`multifield.interface_force`) or None)."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = None

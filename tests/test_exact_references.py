@@ -63,10 +63,10 @@ def test_e6_common_pressure_weights_each_field_by_theta_times_compressibility():
     assert abs(p[2] - P[1, 2]) < 0.02 * abs(P[2, 2] - P[1, 2])        # water beside steel: the water's
 
 
-def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_fields():
-    """(E8) p_amb,k = the common pressure (E6) of the fields other than k, by hand at each node,
-    and 0 where no other field is present ('0 in vacuum'): the lone water at node 3, and at the
-    water's node 3 itself; absent fields (theta = 0) have no say."""
+def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_groups():
+    """(E8) p_amb,k = the common pressure (E6) of the groups (phases, or fields of one phase each)
+    other than k, by hand at each node, and 0 where no other group is present ('0 in vacuum'): the
+    lone water at node 3, and at the water's node 3 itself; absent groups (theta = 0) have no say."""
     kappa = np.repeat(KAPPA[:, None], THETA.shape[1], 1)
     amb = np.asarray(fields.ambient_pressure(jnp.asarray(THETA), jnp.asarray(kappa), jnp.asarray(P)))
     assert amb.shape == THETA.shape
@@ -80,12 +80,14 @@ def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_fields():
 
 @pytest.mark.parametrize("continuity", ["off", "transport"])
 def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_fields(continuity):
-    """(E8) names the other PHASES. A rock block half inside a gas layer, random particle pressures:
-    the ambient pressure at every particle is the same from the interface forces' per-field nodal
-    quantities (two fields, one phase each: the grid update's own result), from the per-phase
-    scatter in that layout, and (continuity 'off': both use E15's fit; a one-field scene has no
-    continuity form) from the per-phase scatter with both phases in one field. The ambient is not
-    0 where the phases overlap, and 0 where the rock is alone."""
+    """(E8) names the other PHASES. A rock block, half inside a gas layer and with a corner in a
+    water pool, random particle pressures. The ambient pressure at every particle is the one the
+    grid update forms from the interface forces' per-field nodal quantities with each phase in a
+    field of its own, and the per-phase scatter gives the same: with gas and water sharing a field
+    (interface forces on), and where both use E15's fit (continuity 'off'; 'transport' estimates
+    the nodal pressures as V S-weighted averages instead) with all three in one field and with
+    three fields coupled by drag alone. Not 0 inside the gas or the water, 0 where the rock's nodes
+    hold no other phase."""
     import dataclasses
 
     from jaxmpm.multifield import ambient_pressure_by_phase
@@ -95,42 +97,50 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
 
     rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
     gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=10.0, K=1.0e7)
+    water = jaxmpm.Material.make("water", "linear_fluid", rho0=1000.0, K=2.2e9)
 
-    def scene(gas_field):
-        return Scene(grid=Grid(cells=(12, 12), h=0.1), materials=(rock, gas), c_h=0.01,
-                     continuity=continuity if gas_field else "off",
-                     phases=(Phase("rock", "rock", Box((0.3, 0.3), (0.7, 0.7)), field=0, fraction=0.6),
-                             Phase("gas", "gas", Box((0.2, 0.5), (1.0, 0.9)), field=gas_field, fraction=0.4)),
-                     drag=1.0 if gas_field else None)
+    def scene(fields, interface_forces=True):
+        coupled = len(set(fields)) > 1
+        return Scene(grid=Grid(cells=(12, 12), h=0.1), materials=(rock, gas, water), c_h=0.01,
+                     continuity=continuity if coupled and interface_forces else "off",
+                     interface_forces=interface_forces if coupled else False,
+                     phases=(Phase("rock", "rock", Box((0.3, 0.3), (0.7, 0.7)), field=fields[0], fraction=0.6),
+                             Phase("gas", "gas", Box((0.2, 0.5), (1.0, 0.9)), field=fields[1], fraction=0.4),
+                             Phase("water", "water", Box((0.0, 0.0), (0.5, 0.4)), field=fields[2], fraction=0.3)),
+                     drag=1.0 if coupled else None)
 
-    two, one = scene(1), scene(0)
-    params = jaxmpm.default_params(two)
-    s = jaxmpm.init_state(two, params)
-    rng = np.random.default_rng(3)
-    p = jnp.asarray(rng.uniform(-1e5, 2e6, s.x.shape[0]))
+    three = scene((0, 1, 2))
+    others = {"gas and water in one field": scene((0, 1, 1))}
+    if continuity == "off":
+        others.update({"one field": scene((0, 0, 0)), "drag alone": scene((0, 1, 2), interface_forces=False)})
+    lay3 = Layout.of(three)
+    assert lay3.ambient_by_field and not any(Layout.of(sc).ambient_by_field for sc in others.values())
+    params = jaxmpm.default_params(three)
+    s = jaxmpm.init_state(three, params)
+    p = jnp.asarray(np.random.default_rng(3).uniform(-1e5, 2e6, s.x.shape[0]))
     s = dataclasses.replace(s, stress=-p[:, None, None] * jnp.eye(2))
-    lay2, lay1 = Layout.of(two), Layout.of(one)
-    assert lay2.ambient_by_field and not lay1.ambient_by_field
 
     @jax.jit
     def ambients(params, s):
-        st = stencil(two, s.x)
+        st = stencil(three, s.x)
         beta = ddmp_beta(st.xi)
-        g = particle_to_grid(lay2, params, st, s, beta)
-        p_amb_n = grid_acceleration(lay2, params, s, st, beta, g, None, jnp.asarray(1e-6), _mass_floor(lay2, s))[3]
-        return (transfer.interpolate(st, lay2.field, p_amb_n[..., None])[:, 0],
-                ambient_pressure_by_phase(lay2, params, st, s), ambient_pressure_by_phase(lay1, params, st, s))
+        g = particle_to_grid(lay3, params, st, s, beta)
+        p_amb_n = grid_acceleration(lay3, params, s, st, beta, g, None, jnp.asarray(1e-6), _mass_floor(lay3, s))[3]
+        return (transfer.interpolate(st, lay3.field, p_amb_n[..., None])[:, 0],
+                {name: ambient_pressure_by_phase(Layout.of(sc), params, st, s) for name, sc in others.items()})
 
-    by_field, by_phase_two, by_phase_one = (np.asarray(a) for a in ambients(params, s))
+    by_field, by_phase = ambients(params, s)
+    by_field = np.asarray(by_field)
     scale = float(jnp.max(jnp.abs(p)))
-    np.testing.assert_allclose(by_phase_two, by_field, rtol=0, atol=1e-12 * scale)
-    if continuity == "off":
-        np.testing.assert_allclose(by_phase_one, by_field, rtol=0, atol=1e-12 * scale)
-    rock_sl = jaxmpm.state.phase_slices(two)[0]
-    x = np.asarray(s.x[rock_sl])
+    for name, amb in by_phase.items():
+        np.testing.assert_allclose(np.asarray(amb), by_field, rtol=0, atol=1e-12 * scale, err_msg=name)
+    rock_sl = jaxmpm.state.phase_slices(three)[0]
+    x, y = np.asarray(s.x[rock_sl]).T
     amb = by_field[rock_sl]
-    assert np.all(amb[x[:, 1] < 0.4] == 0.0)              # two cells below the gas: vacuum around it
-    assert np.all(np.abs(amb[x[:, 1] > 0.55]) > 1e3)      # inside the gas
+    alone = (x > 0.6) & (y < 0.4)                     # nodes x >= 0.6, y <= 0.4: no gas, no water there
+    assert alone.sum() >= 4 and np.all(amb[alone] == 0.0)
+    assert np.all(np.abs(amb[y > 0.55]) > 1e3)                       # inside the gas
+    assert np.all(np.abs(amb[(x < 0.4) & (y < 0.4)]) > 1e3)          # inside the water
 
 
 # ---------------------------------------------------------------------- E15: the linear fit

@@ -71,14 +71,19 @@ class Material:
 
 
 def _outside_this_module() -> int:
-    """The `stacklevel` of a warning issued two calls below this one's caller that names the first
-    frame outside this module and the dataclass's generated __init__: the user's line that made
-    the Material, by `Material(...)` or `Material.make`."""
+    """The `stacklevel` that makes a warning issued by `warn_implausible_units`, called from
+    Material.__post_init__, name the first frame outside this module and the dataclass's generated
+    __init__: the user's line that made the Material, by `Material(...)` or `Material.make`."""
     import sys
 
-    frame, level = sys._getframe(1), 2
-    while frame is not None and frame.f_code.co_filename in (__file__, "<string>"):
+    frame, level = sys._getframe(1), 2          # __post_init__ is level 2 as seen from the warning
+    while frame is not None:
+        inner = frame
         frame, level = frame.f_back, level + 1
+        generated_init = (frame is not None and frame.f_code.co_filename == "<string>" and frame.f_code.co_name == "__init__"
+                          and inner.f_code.co_name == "__post_init__")
+        if frame is None or not (frame.f_code.co_filename == __file__ or generated_init):
+            return level
     return level
 
 
