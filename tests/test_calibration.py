@@ -201,12 +201,14 @@ def test_ensemble_runs_again_when_its_own_plan_falls_short():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 7): at resolution 0.75 the debris front (point 1) and the "
-                   "projectile's front (point 2) move together (5.59, 5.59 km/s; experiment 6.3 > 6.1); at "
-                   "resolution 2 point 2 leads (5.62, 5.74)")
+@pytest.mark.xfail(strict=True, reason="open (issue 7): at resolution 0.75 the debris front (point 1) leads the "
+                   "projectile's front (point 2) by 3 m/s only (5.593, 5.590 km/s at C_h = 0.02; experiment 6.3, "
+                   "6.1: 0.2 km/s); at resolution 2 point 2 leads (5.62, 5.74)")
 def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
+    """The experiment's debris front leads the projectile's front by 0.2 km/s; at least half that.
+    (A bare v1 > v2 passed by 3 m/s once the closure's ambient became per phase, E8, 2026-12-03.)"""
     _, _, v = ch_sweep
-    assert v[0, 0] > v[0, 1], v[0]
+    assert v[0, 0] > v[0, 1] + 0.1, v[0]
 
 
 @pytest.mark.slow
