@@ -158,6 +158,29 @@ def test_no_closure_no_closure_code():
         assert any(var in e.invars for e in closed.jaxpr.eqns) == expect
 
 
+def _scatter_adds(scene):
+    """The number of scatter-adds in the traced step of `scene` (nested programs included)."""
+    params = jaxmpm.default_params(scene)
+    return str(jax.make_jaxpr(jaxmpm.make_step(scene))(params, jaxmpm.init_state(scene, params))).count("scatter-add")
+
+
+def test_the_per_phase_ambient_adds_one_scatter_only_where_a_field_holds_several_phases():
+    """(E8) with each phase in a field of its own the closure's ambient pressure reuses the interface
+    forces' nodal quantities (no scatter more than without the closure); with both phases in one
+    field it takes one scatter onto a grid per phase."""
+    gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=10.0, K=1.0e7)
+
+    def scene(gas_field, c_h):
+        return Scene(grid=Grid(cells=(20,), h=0.05), materials=(ROCK, gas), shape="linear",
+                     phases=(Phase("debris", "rock", Box((0.0,), (1.0,)), field=0, fraction=0.5),
+                             Phase("gas", "gas", Box((0.0,), (1.0,)), field=gas_field, fraction=0.5)),
+                     drag=1.0 if gas_field else None, c_h=c_h, t_end=1e-4)
+
+    for gas_field, extra in ((1, 0), (0, 1)):
+        with_closure, without = _scatter_adds(scene(gas_field, 0.01)), _scatter_adds(scene(gas_field, None))
+        assert with_closure == without + extra, (gas_field, with_closure, without)
+
+
 def test_bad_c_h():
     with pytest.raises(ValueError, match=r"effects\.c_h = 0\.0 is invalid: allowed > 0"):
         block(c_h=0.0)
