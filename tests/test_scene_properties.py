@@ -60,6 +60,7 @@ def _delete(d, path):
         node.pop(path[-1])
 
 
+@pytest.mark.filterwarnings("ignore:materials\\.m.*(faster|denser) than any real material:UserWarning")   # random constants
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(path=st.sampled_from(PATHS), value=junk, action=st.sampled_from(["replace", "delete", "add"]))
 def test_malformed_scene_dict_gives_a_value_error_naming_a_field(path, value, action):
