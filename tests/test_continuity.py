@@ -217,7 +217,7 @@ def test_continuity_off_traces_no_transpose():
     assert on > off
 
 
-@pytest.mark.parametrize("axisymmetric", [False, True])
+@pytest.mark.parametrize("axisymmetric", [pytest.param(False, marks=pytest.mark.slow), True])   # True holds False's terms
 def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetric):
     """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts, contracted
     by ddmp.nodal_interface_force) gives the nodal forces of the general stress parts of p I to

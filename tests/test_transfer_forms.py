@@ -216,7 +216,7 @@ def test_add_corners_transposes_to_the_corner_slices(dim):
 
 
 @pytest.mark.parametrize("shape", ["linear", "bspline2"])
-@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dim", [pytest.param(1, marks=pytest.mark.slow), 2, 3])   # 1D: the product of one factor
 def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     """The tensor-product weights S_n = prod_d S(x_d) (broadcast products of the 1D weights) and
     DDMP's beta (E9, one product reduction in the derivatives' primal too: jnp.prod's own rule
