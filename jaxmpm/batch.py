@@ -146,13 +146,13 @@ def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, 
 
 
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
-             checkpoint=False, shard=True, allow_short=False, progress=True):
+             checkpoint="auto", shard=True, allow_short=False, progress=True):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
     Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
     per member (default: the most any member's CFL step needs, planned on the host). checkpoint:
-    as in `simulate` ("auto" counts the stored states of all B members). shard: split
+    as in `simulate` ("auto", the default, counts the stored states of all B members). shard: split
     the batch across all devices when more than one exists. progress: a bar of the steps run (all
     members advance together). The members' results equal their single runs with the same n_steps
     (tests).

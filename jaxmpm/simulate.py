@@ -257,7 +257,7 @@ def find_nonfinite(scene, state):
 
 
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
-             progress=True, checkpoint=False, chunk=None, restart_file=None, restart_every=10, debug=False,
+             progress=True, checkpoint="auto", chunk=None, restart_file=None, restart_every=10, debug=False,
              mesh=None, overwrite=False, allow_short=False, _report=None):
     """Advance `state` to t_end (s) and return (final, history).
 
@@ -269,13 +269,17 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
       t_end (by more than half a step) raises a RuntimeError naming the time reached, unless
       allow_short (then check final.t). progress: a tqdm bar of simulated time (host driver), or of
       steps (n_steps given, outside jit/grad/vmap; `ensemble` draws one for its batch).
-    checkpoint: how reverse mode through the fixed-length driver bounds its memory.
-      False: no checkpointing; every step's intermediates are stored (MiB per step: short runs only).
+    checkpoint: how reverse mode through the fixed-length driver bounds its memory (a forward run
+      computes the same either way).
+      "auto" (default): "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else
+        "nested".
       "steps": each step recomputed once in reverse from its stored input state: memory grows as
         the number of steps (one State each), the gradient costs about 4-5 forward runs.
       "nested" or True: two-level checkpointing (`_nested_scan`): memory grows as the square root
         of the steps per output, for one more forward pass (about 5-6 forward runs).
-      "auto": "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else "nested".
+      False: no checkpointing; every step's intermediates are stored (MiB per step), and reading
+        them back is slower than recomputing the step: the gradient took 1.0-1.8x the time of
+        "steps" on every built-in scene measured, at 5-26x its memory (benchmarks/NOTES.md).
       (Costs measured on the coarse debris cloud, benchmarks/grad_cost.py.)
     chunk: steps per jitted chunk (host driver).
     restart_file: path of a restart file to save every `restart_every` chunks and at each output

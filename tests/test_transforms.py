@@ -157,6 +157,25 @@ def test_auto_checkpointing_stores_each_step_only_within_its_memory_budget(small
     assert sim.checkpoint_mode(None) is False and sim.checkpoint_mode("steps") == "steps"
 
 
+def test_a_default_gradient_stores_step_inputs_not_every_intermediate(small):
+    """simulate's default checkpointing is "auto": a gradient through a run with default arguments
+    keeps one State per step, where checkpoint=False keeps every step's intermediates (a few MiB
+    per step on the built-in scenes, and slower to read back than the step is to recompute:
+    benchmarks/NOTES.md). Measured by XLA's buffer assignment of the compiled gradient."""
+    scene, params, state = small
+
+    def temp_bytes(**checkpoint):
+        def loss(E):
+            p = params.with_constant("disk_a", "E", E)
+            final, _ = jaxmpm.simulate(scene, p, state, t_end=1.5, n_out=1, n_steps=14, **checkpoint)
+            return jnp.sum(final.mass * final.x[:, 1])
+        return jax.jit(jax.grad(loss)).lower(1000.0).compile().memory_analysis().temp_size_in_bytes
+
+    default, stored = temp_bytes(), temp_bytes(checkpoint=False)
+    states = 14 * importlib.import_module("jaxmpm.simulate").state_bytes(state)
+    assert states <= default < 0.25 * stored, (default, stored, states)
+
+
 def test_jaxmpm_jit_turns_off_ynnpack_fusions_and_gives_the_same_step(small):
     """jaxmpm.jit compiles with XLA's YNNPACK fusions off on the CPU (jaxmpm/compile.py): the
     compiled program has none of them, and the step's result is jax.jit's to round-off."""
