@@ -278,8 +278,9 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
       "nested" or True: two-level checkpointing (`_nested_scan`): memory grows as the square root
         of the steps per output, for one more forward pass (about 5-6 forward runs).
       False: no checkpointing; every step's intermediates are stored (MiB per step), and reading
-        them back is slower than recomputing the step: the gradient took 1.0-1.8x the time of
-        "steps" on every built-in scene measured, at 5-26x its memory (benchmarks/NOTES.md).
+        them back is slower than recomputing the step: on the built-in scenes of 200 particles or
+        more the gradient took 1.0-2.1x the time of "steps" at 4-26x its memory (0.8x on a
+        50-particle column; benchmarks/grad_by_scene.py --checkpoint steps,none).
       (Costs measured on the coarse debris cloud, benchmarks/grad_cost.py.)
     chunk: steps per jitted chunk (host driver).
     restart_file: path of a restart file to save every `restart_every` chunks and at each output
