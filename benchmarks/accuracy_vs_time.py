@@ -70,11 +70,7 @@ def _cast(tree, dtype):
 
 def bar_scene(shape, cells, ppc):
     kind, transfer = SHAPES[shape]
-    scene = vibrating_bar(cells=cells, v0=V0, shape="linear" if kind == "bspline2" else kind, cfl=0.1, ppc=ppc)
-    if kind == "bspline2":
-        h = scene.grid.h
-        scene = dataclasses.replace(scene, shape=kind, grid=Grid(cells=(scene.grid.cells[0] + 1,), h=h, origin=(-h,)),
-                                    boundary=Boundary(faces=(("x_lo", "fixed"),), layers=2))
+    scene = vibrating_bar(cells=cells, v0=V0, shape=kind, cfl=0.1, ppc=ppc)
     return dataclasses.replace(scene, transfer=transfer)
 
 

@@ -52,6 +52,19 @@ def test_ddmp_10x_below_linear_where_particles_cross_cells():
     assert abs(drift_ddmp) < 0.01
 
 
+def test_builtin_bar_with_bspline2_holds_its_fixed_end_and_converges():
+    """With shape "bspline2" the built-in bar's grid starts a cell below the fixed end and holds
+    both nodes there; the quadratic B-spline then converges, at first order (the fixed end's
+    nodes; README, What accuracy costs). Holding only the node below leaves a 42% error that
+    refining does not reduce."""
+    amplitude = 1e-3 / OMEGA
+    errs = [run_bar(n, "bspline2", 1e-3, 0.02, 2.5)[0] for n in (10, 20)]
+    order = math.log2(errs[0] / errs[1])
+    print(f"B-spline vibrating bar errors {errs} (of amplitude {amplitude:.3g} m) -> order {order:.2f}")
+    assert order >= 0.9, (errs, order)
+    assert errs[1] < 0.03 * amplitude
+
+
 def test_seed_halfstep_position_term_is_first_order_in_time():
     """Why the updates move particles with the velocity that drives the stress: the seed's literal
     half-step term leaves an O(dt) error that halving dt halves, far above the default's."""

@@ -47,6 +47,15 @@ def vibrating_bar_state(scene, params, state):
     return dataclasses.replace(state, v=state.v * jnp.sin(beta * state.x[:, :1]))
 
 
+def _fixed_low_end(cells: int, h: float, shape: str):
+    """(grid, boundary) of a 1D body fixed at x = 0 on `cells` cells of size h (m). The quadratic
+    B-spline's stencil spans a node on either side of a particle's cell, so with shape "bspline2"
+    the grid starts one cell below x = 0 and both nodes at and below the fixed end are held."""
+    if shape == "bspline2":
+        return Grid(cells=(cells + 1,), h=h, origin=(-h,)), Boundary(faces=(("x_lo", "fixed"),), layers=2)
+    return Grid(cells=(cells,), h=h), Boundary(faces=(("x_lo", "fixed"),))
+
+
 def _check_cells(scene: str, name: str, value, least: int) -> None:
     """A builder's cell count: an integer >= least (named as the option, not as the grid it makes)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < least:
@@ -59,17 +68,19 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
     Bar L = 25 m, E = 100 Pa, rho = 1 kg/m^3 (c = 10 m/s), fixed at x = 0, free at x = L; the grid
     extends 20% past the free end. Initial velocity v(x, 0) = v0 sin(beta x), beta = pi / (2 L) (v0 is the phase velocity),
     set by `vibrating_bar_state` (applied by `jaxmpm.scenes.initial_state` and `jaxmpm run`). Exact: u(x, t) = (v0 / omega) sin(omega t) sin(beta x), omega = beta c.
-    Measures: displacement error against the exact solution, energy conservation.
+    Measures: displacement error against the exact solution, energy conservation. With shape
+    "bspline2" the grid starts one cell below x = 0 (`_fixed_low_end`).
     """
     _check_cells("vibrating_bar", "cells", cells, 2)
     L = BAR_LENGTH
     h = L / cells
     n_grid = cells + max(2, int(math.ceil(0.2 * cells)))
     mat = Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)
+    grid, boundary = _fixed_low_end(n_grid, h, shape)
     return Scene(name="vibrating_bar", description="1D fixed-free bar, first mode",
-                 grid=Grid(cells=(n_grid,), h=h), shape=shape, materials=(mat,),
+                 grid=grid, shape=shape, materials=(mat,),
                  phases=(Phase("bar", "bar", Box((0.0,), (L,)), velocity=(v0,), ppc=ppc),),
-                 boundary=Boundary(faces=(("x_lo", "fixed"),)), cfl=cfl, t_end=10.0, n_out=10)
+                 boundary=boundary, cfl=cfl, t_end=10.0, n_out=10)
 
 
 def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, ppc: int = 2) -> Scene:
@@ -79,6 +90,7 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
     (particles cross several cells as it settles); fixed at x = 0, free top; gravity -10 m/s^2 ramped
     over 5 wave periods; light damping. Exact static stress in the reference position X:
     sigma(X) = -rho g (L - X) (1D, any strain, since sigma = E (F - 1) is the nominal stress).
+    With shape "bspline2" the grid starts one cell below x = 0 (`_fixed_low_end`).
     """
     _check_cells("self_weight_column", "cells", cells, 2)
     if not (isinstance(load, (int, float)) and not isinstance(load, bool) and 0 < load < 1):
@@ -89,10 +101,11 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
     c = math.sqrt(E / rho)
     period = 4 * L / c
     mat = Material.make("column", "linear_elastic", rho0=rho, E=E, nu=0.0)
+    grid, boundary = _fixed_low_end(cells + 4, h, shape)
     return Scene(name="self_weight_column", description="1D column settling under self-weight",
-                 grid=Grid(cells=(cells + 4,), h=h), shape=shape, materials=(mat,),
+                 grid=grid, shape=shape, materials=(mat,),
                  phases=(Phase("column", "column", Box((0.0,), (L,)), ppc=ppc),),
-                 boundary=Boundary(faces=(("x_lo", "fixed"),)), gravity=(-g,), gravity_ramp=5 * period,
+                 boundary=boundary, gravity=(-g,), gravity_ramp=5 * period,
                  damping=2.0 / period, cfl=0.2, t_end=20 * period, n_out=10)
 
 
