@@ -27,6 +27,7 @@ SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
 BOUNDARIES = ("free", "slip", "fixed")
 AXES = "xyz"
+MAX_PPC = 8   # particles per cell per axis, at most
 
 
 # ----------------------------------------------------------------------------------- phases
@@ -59,8 +60,8 @@ class Phase:
         object.__setattr__(self, "velocity", _floats(f"phase.{self.name}.velocity", v, dim))
         if not _is_integer(self.field) or self.field < 0:
             _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
-        if not _is_integer(self.ppc) or not 1 <= self.ppc <= 8:
-            _fail(f"phase.{self.name}.ppc", self.ppc, "an integer in [1, 8]")
+        if not _is_integer(self.ppc) or not 1 <= self.ppc <= MAX_PPC:
+            _fail(f"phase.{self.name}.ppc", self.ppc, f"an integer in [1, {MAX_PPC}]")
         object.__setattr__(self, "field", int(self.field))
         object.__setattr__(self, "ppc", int(self.ppc))
         frac = _float(f"phase.{self.name}.fraction", self.fraction)

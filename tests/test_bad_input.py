@@ -222,6 +222,8 @@ CASES = [
      r"sweep: gravity has shape \(2,\): allowed a list of values of shape \(2,\) \(2-vectors\)"),
     ("restart file as a number", lambda: simulate_with(restart_file=5), r"restart_file = 5 is invalid: allowed a path"),
     ("builder option below its range", lambda: jaxmpm.load_scene("mpm88", n_grid=3), r"mpm88: n_grid = 3 is invalid: allowed an integer >= 8"),
+    ("builder options that need too many particles per cell", lambda: jaxmpm.load_scene("mpm88", n_grid=32, ppc_scale=2.0),
+     r"mpm88: n_grid = 32 with ppc_scale = 2 needs 10 particles per cell per axis .* allowed at most 8 \(n_grid >= 38"),
     ("builder cell count as a fraction", lambda: jaxmpm.load_scene("vibrating_bar", cells=2.5),
      r"vibrating_bar: cells = 2\.5 is invalid: allowed an integer >= 2"),
     ("a folder as a scene file", lambda: jaxmpm.load_scene("/"),

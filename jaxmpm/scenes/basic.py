@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 from jaxmpm.materials import Material
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.scene import MAX_PPC, Boundary, Box, Grid, Phase, Scene, Sphere
 
 
 def _cells(n: float, resolution: float, minimum: int = 2) -> int:
@@ -124,6 +124,11 @@ def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     box = 0.4
     cells_in_box = box * n_grid
     ppc = max(1, int(round((n_particles / cells_in_box**dim) ** (1.0 / dim))))
+    if ppc > MAX_PPC:
+        least = math.ceil(n_particles ** (1.0 / dim) / (box * (MAX_PPC + 0.5)))
+        raise ValueError(f"mpm88: n_grid = {n_grid} with ppc_scale = {ppc_scale:g} needs {ppc} particles per cell per axis "
+                         f"for the peers' {n_particles} particles: allowed at most {MAX_PPC} (n_grid >= {least} at this "
+                         f"ppc_scale, or a smaller ppc_scale)")
     mat = Material.make("mpm88_fluid", "linear_fluid", rho0=1.0, K=400.0)
     walls = tuple((f"{a}_{s}", "slip") for a in "xyz"[:dim] for s in ("lo", "hi"))
     return Scene(name="mpm88", description="peers' benchmark: weakly compressible fluid, APIC",
