@@ -13,6 +13,8 @@ this is traced only for scenes with K >= 2; a one-field scene never calls into t
            m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k,
            K_kj = C_d theta_k theta_j rho_f |v*_k - v*_j| / d + K_lin theta_k theta_j,
            rho_f the true density of the lighter of the two phases.
+  heat (scene option drag_heating): the drag's work over the step on each pair of fields,
+           J_kj . (v_k - v_j), split between the pair (`drag_heat`), to the particles' internal energy.
 Shapes: K fields, n nodes, d dimensions; SI units.
 """
 from __future__ import annotations
@@ -140,13 +142,16 @@ def drag_rows(theta, rho, v, cd, length, k_lin):
     return rows
 
 
-def exchange(m, v_star, Kmat, dt, V_n, m_min):
+def exchange(m, v_star, Kmat, dt, V_n, m_min, impulses=False):
     """(E3) implicit drag: solve m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k per node.
     m: (K, n), v_star: (K, n, d), Kmat: (K, K, n) (`drag_matrix`) or its nested lists
     (`drag_rows`), V_n: (n,). Returns the exchange force F_k = -V_n sum_j K_kj (v_k - v_j) at the
     implicit velocities, (K, n, d) in N: momentum moves only between fields (sum_k F_k = 0 to
     round-off) and the solve is stable for any drag. The K x K systems are unrolled over the fields
-    with the nodes minor (`solve_rows`): elementwise loops over the nodes, no per-node matrices."""
+    with the nodes minor (`solve_rows`): elementwise loops over the nodes, no per-node matrices.
+    impulses=True: returns (F, J), J (P, n, d) in N s the momentum each pair k < j of fields
+    exchanged over the step, J_kj = dt V_n K_kj (v_k - v_j) (pairs in `field_pairs` order; F_k =
+    -(sum_{j > k} J_kj - sum_{j < k} J_jk) / dt), for `drag_heat`."""
     n_f = m.shape[0]
     Kr = [[None if j == k else Kmat[k][j] for j in range(n_f)] for k in range(n_f)]
     empty = m <= m_min                                                        # (K, n)
@@ -165,7 +170,36 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min):
              for k in range(n_f)]
         v = solve_rows(A, rhs)[0]
     F = [V_n[:, None] * sum(Kr[k][j][:, None] * (v[j] - v[k]) for j in range(n_f) if j != k) for k in range(n_f)]
-    return jnp.where(empty[..., None], 0.0, jnp.stack(F))
+    F = jnp.where(empty[..., None], 0.0, jnp.stack(F))
+    if not impulses:
+        return F
+    return F, jnp.stack([c[k][j][:, None] * (v[k] - v[j]) for k, j in field_pairs(n_f)])
+
+
+def field_pairs(n_fields):
+    """The pairs (k, j), k < j, of n_fields velocity fields, in the order of `exchange`'s impulses."""
+    return [(k, j) for k in range(n_fields) for j in range(k + 1, n_fields)]
+
+
+def drag_heat(J, m, v, m_min):
+    """Heat of the exchange (our closure; scene option drag_heating), (K, n) in J per node and field.
+    The drag does the work w_kj = J_kj . (v_k - v_j) on each pair of fields over the step: its
+    power (E3) at the fields' velocities v (K, n, d) m/s, which `seed_update` takes from the remap
+    of the particles' updated velocities (before E14), so that the sum over nodes equals the kinetic
+    energy the exchange takes from the particles, sum_p m_p v_p^new . dt a_F,p. At the solve's own
+    velocities w_kj = dt V_n K_kj |v_k - v_j|^2 >= 0; at the remapped ones it is negative only where
+    their relative velocity opposes the solve's (cooling there, as the particles gain). Each pair's work is
+    split as if the interface moved with the pair's centre of mass: field k takes m_j / (m_k + m_j)
+    of it, so the lighter field heats more (two fields: each takes the change of its own kinetic
+    energy in the centre-of-mass frame). J: (P, n, d) pair impulses (`exchange`); m: (K, n) kg."""
+    n_f = m.shape[0]
+    heat = [jnp.zeros_like(m[0]) for _ in range(n_f)]
+    for J_kj, (k, j) in zip(J, field_pairs(n_f)):
+        w = jnp.sum(J_kj * (v[k] - v[j]), -1)
+        pair = m[k] + m[j]
+        heat[k] = heat[k] + w * safe_div(m[j], pair, m_min)
+        heat[j] = heat[j] + w * safe_div(m[k], pair, m_min)
+    return jnp.stack(heat)
 
 
 def ambient_pressure(theta, kappa, P):

@@ -218,7 +218,7 @@ def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
     return power_density, phase_pressure_and_compressibility(lay, params, state)[0]
 
 
-def exchange_force(lay, params, m, vol, v, dt, m_min):
+def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
     """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
     and velocities v (K, n_nodes, d), over a time step dt (s).
 
@@ -232,19 +232,27 @@ def exchange_force(lay, params, m, vol, v, dt, m_min):
     With scene.window the solve runs on one block of window + 1 nodes per axis placed on the
     nodes where two or more fields have volume: the drag K_kj is proportional to theta_k theta_j
     (E3), so the force is exactly zero at every other node. When those nodes span more than the
-    block, the step solves on the whole grid."""
+    block, the step solves on the whole grid.
+
+    impulses=True: returns (F, J), J (P, n_nodes, d) in N s the momentum each pair of fields
+    exchanged (`fields.exchange`; zero where no solve ran)."""
     scene = lay.scene
     V_n = node_volume(lay, m.dtype)
+    n_pairs = m.shape[0] * (m.shape[0] - 1) // 2
 
     def solve(m, vol, v, V_n):
         theta = vol / V_n[None]
         rho = fields.safe_div(m, vol, 0.0)
         K = fields.drag_rows(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
                              params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
-        return fields.exchange(m, v, K, dt, V_n, m_min)
+        return fields.exchange(m, v, K, dt, V_n, m_min, impulses)
+
+    def zeros(v):
+        F = jnp.zeros_like(v)
+        return (F, jnp.zeros((n_pairs,) + v.shape[1:], v.dtype)) if impulses else F
 
     if scene.window is None:
-        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: jnp.zeros_like(v))
+        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: zeros(v))
     nodes = tuple(scene.grid.nodes)
     size = tuple(c + 1 for c in scene.window)
     K, d = m.shape[0], len(nodes)
@@ -265,10 +273,13 @@ def exchange_force(lay, params, m, vol, v, dt, m_min):
     F_block = solve(*jax.lax.cond(on, take, nothing))    # taken under the conditional: kept as arrays (see ddmp._on_windows)
 
     def place():
-        return ddmp.put_window(F_block.reshape((K,) + size + (d,)), origin, nodes).reshape(v.shape)
+        def put(a):   # F (K, ...) or the pair impulses (P, ...), all on the one block
+            at = jnp.broadcast_to(origin[:1], (a.shape[0], d))
+            return ddmp.put_window(a.reshape(a.shape[:1] + size + (d,)), at, nodes).reshape(a.shape[:1] + v.shape[1:])
+        return tuple(put(a) for a in F_block) if impulses else put(F_block)
 
     @jax.checkpoint   # differentiated: its residuals are its inputs (see ddmp._on_windows)
     def whole(m, vol, v):
-        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: jnp.zeros_like(v))
+        return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: zeros(v))
 
     return jax.lax.cond(on, place, lambda: whole(m, vol, v))

@@ -138,6 +138,12 @@ class Scene:
         interface forces of (E13, E6, E15) between fields (on by default; only with >= 2 fields);
         a list of field indices: only those fields share the common pressure, the others are
         coupled by the drag alone (a light gas beside loaded solids: rod_penetration).
+        drag_heating: book the work the exchange's drag (E3) dissipates as internal energy of the
+        fields' particles (our closure, off by default; only with transfer = 'musl'): each pair's
+        work J_kj . (v_k - v_j) at the remapped velocities, split as if the interface moved with
+        the pair's centre of mass (the lighter field heats more); a particle takes its field's
+        nodal heat per unit mass, weighted by S_np (jaxmpm.fields.drag_heat). Without it the
+        drag's dissipation leaves the energy balance (the coarse 2-field debris cloud loses 3%).
       continuity: the continuity form of (E7) between the fields that share the common pressure:
         'transport' (the fields resist overlapping: each phase takes its compressibility share of
         the volume that the interface forces' motion closes, the exact transpose of those forces,
@@ -183,6 +189,7 @@ class Scene:
     drag: float | None = None
     drag_length: float | None = None
     linear_drag: float | None = None
+    drag_heating: bool = False
     interface_forces: bool = True
     continuity: str = "auto"
     c_h: float | None = None
@@ -346,6 +353,14 @@ class Scene:
         object.__setattr__(self, "t_end", t_end)
         if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
             _fail("output.n_out", self.n_out, "an integer >= 1")
+        if not isinstance(self.drag_heating, bool):
+            _fail("effects.drag_heating", self.drag_heating, "true | false")
+        if self.drag_heating and not self.has_exchange:
+            _fail("effects.drag_heating", self.drag_heating, "false unless the scene has an exchange (effects.drag or "
+                  "effects.linear_drag, and phases in two or more velocity fields)")
+        if self.drag_heating and self.transfer != "musl":
+            _fail("effects.drag_heating", self.drag_heating, "false unless transfer = 'musl' (the heat is the drag's "
+                  "work at the remap of the step's own positions)")
         if self.window is not None and self.shape != "ddmp" and not self.has_interface_forces and not self.has_exchange:
             _fail("window", list(self.window), "None unless the scene has DDMP operators (shape 'ddmp', or interface "
                   "forces between velocity fields) or an exchange between fields")

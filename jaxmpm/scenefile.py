@@ -46,7 +46,7 @@ except ModuleNotFoundError:  # Python 3.10
 TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "window", "grid", "boundary", "effects",
             "output", "materials", "phase")
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "interface_forces", "continuity", "c_h", "fragmentation",
+EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "drag_heating", "interface_forces", "continuity", "c_h", "fragmentation",
                "artificial_viscosity")
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
@@ -155,6 +155,8 @@ def scene_from_dict(d: Mapping) -> Scene:
         kw["continuity"] = _typed(e["continuity"], (str,), "effects.continuity", "'auto' | 'off' | 'transport'")
     if "body_force" in e:
         kw["body_force"] = _typed(e["body_force"], (bool,), "effects.body_force", "true | false")
+    if "drag_heating" in e:
+        kw["drag_heating"] = _typed(e["drag_heating"], (bool,), "effects.drag_heating", "true | false")
     if "interface_forces" in e:
         f = _typed(e["interface_forces"], (bool, list), "effects.interface_forces",
                    "true | false | a list of velocity fields")
@@ -187,6 +189,8 @@ def scene_to_dict(scene: Scene) -> dict:
     for k in ("drag", "drag_length", "linear_drag", "c_h"):
         if getattr(scene, k) is not None:
             e[k] = getattr(scene, k)
+    if scene.drag_heating:
+        e["drag_heating"] = True
     if scene.interface_forces is not True:
         e["interface_forces"] = list(scene.interface_forces) if scene.interface_forces else False
     if scene.continuity != "auto":

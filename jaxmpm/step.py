@@ -211,7 +211,8 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     Returns (v_old, a, DDMP operators or None, the closure's ambient pressure (K, n_nodes) where
     every field holds one phase and the fields have interface forces (else None: `seed_update`
     forms it per phase, E8), the continuity form's volume rate v -> (N,)
-    (`multifield.interface_force`) or None)."""
+    (`multifield.interface_force`) or None, the exchange's pair impulses (P, n_nodes, d) in N s
+    with scene.drag_heating (`fields.exchange`), else None)."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = None
@@ -234,11 +235,14 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     if scene.damping is not None:
         a = a - params.damping * v
     a = _apply_bc(lay, a)
+    impulses = None
     if scene.has_exchange:
         with jax.named_scope("exchange"):
-            F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min)
+            F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min, scene.drag_heating)
+            if scene.drag_heating:
+                F, impulses = F
         a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
-    return v, a, dg, p_amb, volume_rate
+    return v, a, dg, p_amb, volume_rate, impulses
 
 
 def _with_hoop(lay, st, L, v, radius):
@@ -278,13 +282,14 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state))
 
 
-def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
+def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min, raw=False):
     """Remap particle velocities v_p onto the nodes of stencil st: v_n = sum m_p v_p S_np / m_n,
     walls applied; with several coupled fields the implicit exchange applied again (E14).
-    vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d)."""
+    vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d); raw=True:
+    (that, the remapped velocity before E14)."""
     w = st.w[..., None]
     g = scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
-    v = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
+    v = v_raw = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
     if lay.scene.has_exchange:                                                           # (E14)
         F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
         # under lax.cond(dt > 0), like the exchange (at dt = 0 the update adds nothing): XLA keeps
@@ -292,7 +297,7 @@ def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min):
         # gradient (E12) and repeated them for each of a cell's 16 outputs (the debris cloud's E12
         # 0.40 -> 0.21 ms per step; its forward step and gradient 8-10% faster, interleaved)
         v = jax.lax.cond(dt > 0, lambda: _apply_bc(lay, v + dt * fields.safe_div(F, g["m"], m_min)), lambda: v)
-    return v
+    return (v, v_raw) if raw else v
 
 
 def seed_update(lay, params, state, dt):
@@ -328,7 +333,7 @@ def seed_update(lay, params, state, dt):
             g = tangent_fenced(g, dt > 0)
         acc_p = body_acceleration(lay, params, state)
     with jax.named_scope(STAGES[2]):                                               # 3
-        v_n, a_n, dg, p_amb_n, volume_rate = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
+        v_n, a_n, dg, p_amb_n, volume_rate, impulses = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
     with jax.named_scope(STAGES[3]):                                               # 4
         p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
         if scene.c_h is not None and lay.n_phases > 1 and not lay.ambient_by_field:
@@ -337,7 +342,13 @@ def seed_update(lay, params, state, dt):
             v = state.v + dt * interpolate(st, lay.field, a_n)
             vol_n = g["vol"][..., 0] if "vol" in g else None
             with jax.named_scope("remap"):
-                v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min)
+                v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min, raw=impulses is not None)
+            energy = state.energy
+            if impulses is not None:   # the drag's work as heat (drag_heating), by mass: sum_p m_p de_p = sum_n Q_nk
+                v_r, v_raw = v_r
+                m = g["m"][..., 0]
+                heat = fields.drag_heat(impulses, m, v_raw, m_min)
+                energy = energy + interpolate(st, lay.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
             x = state.x + dt * interpolate(st, lay.field, v_r)
             with jax.named_scope("velocity_gradient"):
                 L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg,
@@ -345,7 +356,7 @@ def seed_update(lay, params, state, dt):
                 if scene.continuity_form == "transport":                           # (E7)
                     extra = volume_rate(v_r)
                     L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-            moved = replace(state, x=x, v=v)
+            moved = replace(state, x=x, v=v, energy=energy)
         else:
             half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
             va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
