@@ -131,3 +131,16 @@ def test_drag_heating_round_trips_through_a_scene_file():
     assert "drag_heating = true" in text
     assert jaxmpm.scenefile.scene_from_toml(text) == scene
     assert "drag_heating" not in jaxmpm.scene_to_toml(two_blocks(1.0, "auto"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,options", [("sandwich_target", dict(fields=3, resolution=0.5)),
+                                          ("rod_penetration", dict(fields=2, resolution=0.5))])
+def test_built_in_multi_field_impacts_keep_their_energy_with_drag_heating(name, options):
+    """Three fields through a sandwich plate at 800 m/s, a rod into a target at 2 km/s in two
+    fields, to their scenes' end times: without the heat 5% and 11% of the energy leave with the
+    drag's dissipation; with it the runs keep theirs within 0.5% (0.998 and 0.997 when written)."""
+    def ratio(heat):
+        return total_energy_ratio(jaxmpm.load_scene(name, **options, overrides={"effects.drag_heating": True} if heat else None))
+    assert 1 - ratio(False) > 0.03
+    assert abs(1 - ratio(True)) < 0.005
