@@ -89,8 +89,11 @@ def _check_scene(args, fields):
     import jaxmpm
     try:
         jaxmpm.load_scene("debris_cloud", resolution=args.resolution, fields=args.fields, t_end=args.t_end,
-                          fragmentation=args.fragmentation)
+                          fragmentation=args.fragmentation, drag_heating=args.drag_heating)
     except ValueError as e:
+        if args.drag_heating and args.fields != 2:
+            raise ValueError(f"--drag-heating is invalid with --fields {args.fields}: allowed only with --fields 2 "
+                             "(the heat is the drag's work between the two fields)") from None
         raise ValueError(f"--resolution {args.resolution} is invalid: {e}") from None
 
 
@@ -120,7 +123,7 @@ def _setup(args):
         jax.config.update("jax_enable_x64", True)
     from calibration.model import CloudModel
     return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end,
-                            fragmentation=args.fragmentation)
+                            fragmentation=args.fragmentation, drag_heating=args.drag_heating)
 
 
 def cmd_table(args) -> int:
@@ -147,7 +150,8 @@ def cmd_table(args) -> int:
     csv_path = out / "ch_table.csv"
     with open(csv_path, "w") as f:
         f.write("# debris-cloud feature velocities (km/s, downstream positive); jaxmpm at resolution "
-                f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, fragmentation {args.fragmentation}, t_end = {model.t_end:g} s\n")
+                f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, fragmentation {args.fragmentation}, "
+                f"drag heating {'on' if args.drag_heating else 'off'}, t_end = {model.t_end:g} s\n")
         f.write("source,C_h,point_1,point_2,point_4\n")
         for r in rows:
             f.write(f"{r['source']},{'' if r['C_h'] is None else r['C_h']},{r['v'][0]:.4f},{r['v'][1]:.4f},{r['v'][2]:.4f}\n")
@@ -219,6 +223,7 @@ def cmd_fit(args) -> int:
         fitted_km_s=fitted.tolist(), residuals_km_s=res.residuals.tolist(), max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
         history=res.history, landscape=land,
         settings=dict(resolution=args.resolution, fields=args.fields, fragmentation=args.fragmentation,
+                      drag_heating=args.drag_heating,
                       t_end=model.t_end, n_steps=model.n_steps,
                       particles=int(model.state.x.shape[0]), start=list(start), iterations=args.iterations,
                       method=args.method, evaluations=res.evaluations, learning_rate=args.learning_rate, float32=args.float32, data=meas.source, wall_seconds=wall,
@@ -270,6 +275,8 @@ def build_parser():
         p.add_argument("--fragmentation", choices=("failed", "plastic"), default="failed",
                        help="what the closure counts as fragmented: failed material's plastic strain (default) "
                        "or all plastic strain (the seed's E5)")
+        p.add_argument("--drag-heating", action="store_true", help="book the drag's work as heat (Scene.drag_heating; "
+                       "only with --fields 2): the run keeps its energy, and the fitted C_d, C_h change")
         p.add_argument("--float32", action="store_true", help="float32 (default float64: float32 adjoints of "
                        "the two-field cloud overflow past ~2 us)")
     t = sub.choices["table"]

@@ -270,6 +270,7 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     (["fit", "--learning-rate", "nan"], r"--learning-rate nan is invalid: allowed a finite number > 0"),
     (["fit", "--fields", "1"], r"--fields 1 is invalid: allowed 2 \(C_d, the drag between the two velocity fields"),
     (["table", "--fields", "3"], r"--fields 3 is invalid: allowed 1 \| 2"),
+    (["table", "--drag-heating"], r"--drag-heating is invalid with --fields 1: allowed only with --fields 2"),
     (["table", "--c-h", "a,b"], r"--c-h 'a,b' is invalid: allowed comma-separated numbers"),
     (["table", "--c-h", ""], r"--c-h '' is invalid: allowed comma-separated numbers"),
     (["table", "--c-h", "0.1,inf"], r"--c-h '0.1,inf' is invalid: allowed C_h values > 0"),

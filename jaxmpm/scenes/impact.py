@@ -13,7 +13,7 @@ IMPACT_SPEED = 6710.0           # m/s
 def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, drag: float = 1.0,
                  t_end: float = 6e-6, plate_radius: float = 15e-3, speed: float = IMPACT_SPEED,
                  plate_thickness: float = PLATE_THICKNESS, sphere_diameter: float = SPHERE_DIAMETER,
-                 gap: float | None = None, fragmentation: str = "failed") -> Scene:
+                 gap: float | None = None, fragmentation: str = "failed", drag_heating: bool = False) -> Scene:
     """Debris cloud: an Al-2024 sphere hits a thin Al-2024 plate at 6.71 km/s (Piekutowski, Int. J.
     Impact Eng. 14 (1993) 573; the seed's "continuous to disperse flow transition" and C_h table;
     the measured feature velocities are in jaxmpm's calibration data).
@@ -30,7 +30,8 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     (2: projectile and plate apart, coupled by drag C_d = `drag` and the common pressure; 1: one
     field). Effects: the alpha closure with C_h = `c_h` (E4, E5, E8; `fragmentation` 'failed': only
     failed material counts its plastic strain as fragmentation; 'plastic': the seed's E5),
-    artificial viscosity (0.5, 2.0).
+    artificial viscosity (0.5, 2.0); with fields = 2 and `drag_heating`, the drag's work booked as
+    heat (Scene.drag_heating: the run then keeps 0.995 of its energy, 0.970 without).
     Walls: slip on the outer radius, top and bottom of the grid (jets from the contact rim reach them;
     axial momentum is kept where only the radial wall is hit). Measures: the debris cloud's shape
     and the axial velocities of its features.
@@ -53,6 +54,9 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     """
     if fields not in (1, 2):
         raise ValueError(f"fields = {fields!r} is invalid: allowed 1 | 2")
+    if drag_heating is not False and fields != 2:
+        raise ValueError(f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 "
+                         "(the heat is the drag's work between the projectile's and the plate's fields)")
     for name, value in (("resolution", resolution), ("speed", speed), ("plate_thickness", plate_thickness),
                         ("sphere_diameter", sphere_diameter), ("plate_radius", plate_radius), ("t_end", t_end)):
         if not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
@@ -82,8 +86,8 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
         boundary=Boundary(faces=(("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))),
         phases=(Phase("projectile", "al2024", Sphere((0.0, R + gap), R), velocity=(0.0, -speed), field=0),
                 Phase("plate", "al2024", Box((0.0, -plate_thickness), (plate_radius, 0.0)), field=fields - 1)),
-        drag=drag if fields == 2 else None, c_h=c_h, fragmentation=fragmentation, artificial_viscosity=(0.5, 2.0),
-        t_end=t_end, n_out=12, cfl=0.3)
+        drag=drag if fields == 2 else None, drag_heating=drag_heating, c_h=c_h, fragmentation=fragmentation,
+        artificial_viscosity=(0.5, 2.0), t_end=t_end, n_out=12, cfl=0.3)
 
 
 TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED = 25.4e-3, 7.62e-3, 190.0     # m, m, m/s
