@@ -198,7 +198,7 @@ def cmd_fit(args) -> int:
     se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
     print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
-    reached = model.reached(res.theta)
+    reached = model.reached(res.theta, progress=not args.no_progress)
     if reached < model.t_end * (1 - 1e-6):
         print(f"warning: at the fit the run reaches only t = {reached:.4g} s of {model.t_end:g} s in {model.n_steps} "
               "steps (its CFL step collapsed): the fitted velocities are not measured over the intended window")
@@ -212,7 +212,8 @@ def cmd_fit(args) -> int:
     if args.landscape >= 2:
         cds = np.geomspace(args.landscape_cd[0], args.landscape_cd[1], args.landscape)
         chs = np.geomspace(args.landscape_ch[0], args.landscape_ch[1], args.landscape)
-        loss, _ = F.landscape(lambda th: model.velocities_batch(th, allow_short=True), meas.experiment, cds, chs)
+        loss, _ = F.landscape(lambda th: model.velocities_batch(th, allow_short=True, progress=not args.no_progress),
+                             meas.experiment, cds, chs)
         land = dict(C_d=cds.tolist(), C_h=chs.tolist(), loss=loss.tolist())
     wall = time.perf_counter() - t0
     result = dict(

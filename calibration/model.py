@@ -63,14 +63,14 @@ class CloudModel:
                                   n_steps=self.n_steps, checkpoint=checkpoint, allow_short=True)   # see `reached`
         return self.velocities_of_history(hist)
 
-    def reached(self, theta):
+    def reached(self, theta, progress=True):
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
         final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
-                                   n_steps=self.n_steps, allow_short=True)
+                                   n_steps=self.n_steps, allow_short=True, progress=progress)
         return float(final.t)
 
-    def velocities_batch(self, thetas, allow_short=False):
+    def velocities_batch(self, thetas, allow_short=False, progress=True):
         """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`); with
         allow_short, members that do not reach t_end give NaN instead of an error."""
         thetas = np.asarray(thetas, dtype=float)
@@ -79,7 +79,7 @@ class CloudModel:
             values["drag_coefficient"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
         final, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out,
-                                      n_steps=self.n_steps, allow_short=allow_short)
+                                      n_steps=self.n_steps, allow_short=allow_short, progress=progress)
         v = jax.vmap(self.velocities_of_history)(hist)
         short = final.t < self.t_end * (1 - 1e-6)
         return jnp.where(short[:, None], jnp.nan, v)

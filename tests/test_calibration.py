@@ -415,3 +415,19 @@ def test_fit_refuses_bad_arguments_before_any_run(options, match):
     with pytest.raises(ValueError, match=match):
         fit(velocities, progress=False, **args)
     assert all(calls)
+
+
+def test_the_fits_checks_after_the_optimiser_follow_no_progress(capfd):
+    """`fit --no-progress` runs the fitted point once more (`reached`) and the landscape
+    (`velocities_batch`): both without a progress bar when asked, with one by default."""
+    from calibration.model import CloudModel
+
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=2e-7, n_out=2, drag_heating=True)
+    assert model.scene.drag_heating
+    theta = np.log([1.0, 0.15])
+    capfd.readouterr()
+    assert model.reached(theta, progress=False) == pytest.approx(2e-7)
+    np.asarray(model.velocities_batch(np.stack([theta, theta + 0.1]), allow_short=True, progress=False))
+    assert "step/s" not in capfd.readouterr().err
+    model.reached(theta)
+    assert "step/s" in capfd.readouterr().err
