@@ -271,17 +271,17 @@ def build_parser():
         p.add_argument("--fields", type=int, default=2 if name == "fit" else 1,
                        help="velocity fields (2 for fit: C_d acts between them; 1 or 2 for table)")
         p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
-        p.add_argument("--data", default=None, help="the experiment's CSV (default: the packaged copy)")
+        p.add_argument("--data", default=None, help="the experiment's CSV (None: the packaged copy)")
         p.add_argument("--out", default=default_out, help="output folder (must not hold a previous result)")
         p.add_argument("--fragmentation", choices=("failed", "plastic"), default="failed",
-                       help="what the closure counts as fragmented: failed material's plastic strain (default) "
-                       "or all plastic strain (the seed's E5)")
+                       help="what the closure counts as fragmented: failed material's plastic strain (failed) "
+                       "or all plastic strain (plastic: the seed's E5)")
         p.add_argument("--drag-heating", action="store_true", help="book the drag's work as heat (Scene.drag_heating; "
                        "only with --fields 2): the run keeps its energy, and the fitted C_d, C_h change")
-        p.add_argument("--float32", action="store_true", help="float32 (default float64: float32 adjoints of "
+        p.add_argument("--float32", action="store_true", help="run in float32 (otherwise float64: float32 adjoints of "
                        "the two-field cloud overflow past ~2 us)")
     t = sub.choices["table"]
-    t.add_argument("--c-h", default=",".join(map(str, SEED_CH)), help="C_h values (default: the seed's)")
+    t.add_argument("--c-h", default=",".join(map(str, SEED_CH)), help="C_h values (comma-separated; the default is the seed's)")
     t.add_argument("--drag", type=float, default=1.0, help="C_d > 0 (used with --fields 2)")
     f = sub.choices["fit"]
     f.add_argument("--iterations", type=int, default=30, help="optimiser iterations")
@@ -290,17 +290,19 @@ def build_parser():
                    help="optimiser: adam (robust from a poor start) or lbfgs (line search; few iterations near the optimum)")
     f.add_argument("--learning-rate", type=float, default=0.15, help="Adam step in log space (> 0)")
     f.add_argument("--landscape", type=int, default=4, help="N >= 2: an N x N landscape grid (0: none)")
-    f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"))
-    f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"))
-    f.add_argument("--no-progress", action="store_true")
+    f.add_argument("--landscape-cd", type=float, nargs=2, default=(0.1, 10.0), metavar=("LO", "HI"),
+                   help="the landscape's C_d range (log-spaced)")
+    f.add_argument("--landscape-ch", type=float, nargs=2, default=(0.02, 1.0), metavar=("LO", "HI"),
+                   help="the landscape's C_h range (log-spaced)")
+    f.add_argument("--no-progress", action="store_true", help="no progress bars")
     y = sub.add_parser("synthetic", help="recover known (C_d, C_h) on a small two-phase scene (about a minute)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     y.set_defaults(fn=cmd_synthetic)
     y.add_argument("--truth", default="1.0,0.15", help="C_d,C_h that generate the observables")
     y.add_argument("--start", default="2.0,0.3", help="starting C_d,C_h")
     y.add_argument("--iterations", type=int, default=20, help="optimiser iterations")
-    y.add_argument("--method", choices=("adam", "lbfgs"), default="lbfgs")
-    y.add_argument("--no-progress", action="store_true")
+    y.add_argument("--method", choices=("adam", "lbfgs"), default="lbfgs", help="optimiser")
+    y.add_argument("--no-progress", action="store_true", help="no progress bars")
     return ap
 
 

@@ -6,6 +6,7 @@
     jaxmpm run --resume DIR [--overwrite] [--no-progress] [--restart-every N]
     jaxmpm scenes
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
+    jaxmpm materials [KEY] [--model KIND]
 
 `run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state), and
 <name>.restart.h5 every N chunks (`--restart-every`, 20 by default, 0: never), from which
@@ -278,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--t-end", type=float, help="end time, s (default: the scene's t_end)")
     run.add_argument("--n-out", type=int, help="number of outputs after the initial one (default: the scene's)")
     run.add_argument("--set", action="append", metavar="KEY=VALUE",
-                     help="override a scene-file key, e.g. --set grid.cells=[32,32] --set phase.disk_a.velocity=[0.2,0.2]")
+                     help="override a scene-file key, e.g. --set 'grid.cells=[32,32]' --set 'phase.disk_a.velocity=[0.2,0.2]' (quoted for the shell)")
     run.add_argument("--opt", action="append", metavar="NAME=VALUE",
                      help="option of a built-in scene's builder, e.g. --opt resolution=0.5")
     run.add_argument("--overwrite", action="store_true", help="replace existing output files")

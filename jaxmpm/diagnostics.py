@@ -16,7 +16,8 @@ def total_mass(state):
 
 
 def momentum(state):
-    """(d,) total linear momentum, kg m/s."""
+    """(d,) total linear momentum, kg m/s (per unit depth in 2D, kg/s; per unit area in 1D; per
+    radian in axisymmetric scenes, where only its axial component z is conserved)."""
     return jnp.sum(state.mass[:, None] * state.v, axis=0)
 
 

@@ -147,7 +147,7 @@ GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
 
 
 def geometry_from_dict(d: Mapping, where: str):
-    """Box or Sphere from its scene-file table; ValueError naming `where` on bad input."""
+    """Box, Sphere or Difference from its scene-file table; ValueError naming `where` on bad input."""
     if not isinstance(d, Mapping):
         _fail(where, d, "a table with key 'type' (box | sphere | difference)")
     d = dict(d)

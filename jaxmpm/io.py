@@ -10,8 +10,9 @@ HDF5 layout written by `write` (SI units; every dataset carries a `units` attrib
     /t0000, /t0001, ...  one group per output time, attr `time` (s)
     /tNNNN/<phase>/      attrs: material, field, n_particles
         x (n, d) m, v (n, d) m/s, volume (n,) m^3, mass (n,) kg (per unit depth in 2D: m^2, kg/m;
-        per unit area in 1D: m, kg/m^2), F (n, d, d) 1,
-        stress (n, d, d) Pa, energy (n,) J/kg; C (n, d, d) 1/s with APIC transfer;
+        per unit area in 1D: m, kg/m^2; per radian in axisymmetric scenes: m^3/rad, kg/rad),
+        F (n, D, D) 1, stress (n, D, D) Pa (D = d, or 3 in axisymmetric scenes: r, z, theta),
+        energy (n,) J/kg; C (n, d, d) 1/s with APIC transfer;
         eps_ps (n,) 1, pressure (n,) Pa and damage (n,) 1 where the State has them;
         x3 (n, 3) m and v3 (n, 3) m/s: x and v padded with zeros to 3 components (1D, 2D), for XDMF.
 
@@ -65,7 +66,8 @@ def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
     """Bytes that `write` needs for n_times outputs of n_particles (datasets x, v, x3, v3, volume,
     mass, F, stress, energy, eps_ps, pressure, damage, C where used), with 10% for metadata and the XDMF."""
     d = scene.dim
-    per_particle = 2 * d + 6 + 2 + 2 * d * d + 4 + (d * d if scene.transfer == "apic" else 0)
+    D = 3 if scene.axisymmetric else d                    # F and stress: (n, 3, 3) in axisymmetric scenes
+    per_particle = 2 * d + 6 + 2 + 2 * D * D + 4 + (d * d if scene.transfer == "apic" else 0)
     return int(1.1 * n_times * n_particles * per_particle * itemsize) + 65536
 
 

@@ -76,7 +76,8 @@ def check_dt(scene, params, state, dt) -> None:
         raise ValueError(f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})")
     if dt > limit * (1 + 1e-12):
         raise ValueError(f"dt = {dt:.6g} s is above the CFL limit: allowed (0, {limit:.6g}] s "
-                         f"(cfl = {float(params.cfl):g}, h = {scene.grid.h:g} m)")
+                         f"(params.cfl = {float(params.cfl):g} times cfl_limit = {limit / float(params.cfl):.6g} s, "
+                         f"h = {scene.grid.h:g} m)")
 
 
 NUMBERS_PER_NODE = 16     # a lower bound: a step holds far more per node and velocity field than this
@@ -110,8 +111,8 @@ def check_memory(scene, state) -> None:
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """Number of scan steps that reach t_end (s): (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
-    CFL step at `state`, times `safety` >= 1). Call it outside jit/grad/vmap and pass it as
-    `n_steps`."""
+    number of CFL steps at `state` times `safety` >= 1). Call it outside jit/grad/vmap and pass it
+    as `n_steps`."""
     check_params(scene, params)
     check_state(scene, state)
     return _planned_steps(scene, params, state, t_end, dt, safety)

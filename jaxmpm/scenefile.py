@@ -1,10 +1,15 @@
 """Scene files (TOML) and built-in scenes: read, write, and `load_scene`.
 
-A scene file has top-level keys name, description, shape, transfer, cfl, t_end and the tables
-[grid], [boundary], [effects], [output], [materials.<key>] and [[phase]]. Unknown keys are errors,
-never ignored; every error is a ValueError naming the field (and the line, for malformed TOML).
+A scene file has the top-level keys name, description, shape, transfer, cfl, t_end,
+axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
+origin), [boundary] (x_lo ... z_hi: "free", "slip" or "fixed"; layers), [effects] (gravity,
+gravity_ramp, damping, body_force, drag, drag_length, linear_drag, drag_heating,
+interface_forces, continuity, c_h, fragmentation, artificial_viscosity), [output] (n_out),
+[materials.<key>] and [[phase]] (name, material, geometry, velocity, field, ppc, fraction).
+Unknown keys are errors, never ignored; every error is a ValueError naming the field (and the
+line, for malformed TOML).
 
-    name = "two_blocks"
+    name = "block_on_floor"
     shape = "ddmp"
     t_end = 1e-3
     [grid]
@@ -19,6 +24,9 @@ never ignored; every error is a ValueError naming the field (and the line, for m
     rho0 = 1000.0
     E = 1e6
     nu = 0.3
+    [materials.plate]
+    library = "al2024"          # a library key (`jaxmpm materials`), its default model,
+    model = "hypoelastic"       # or another model kind; further keys override constants
     [[phase]]
     name = "block"
     material = "soft"

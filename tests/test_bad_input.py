@@ -204,7 +204,7 @@ CASES = [
      r"state\.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, allowed an array of shape \(\d+, 2, 2\)"),
     ("APIC affine matrix of the wrong shape", lambda: apic_with_state(C=lambda s: s.C[:, :1]), r"state\.C has shape \(\d+, 1, 2\): the scene needs \(\d+, 2, 2\)"),
     # --- running
-    ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(cfl = 0\.3, h = 0\.1 m\)"),
+    ("time step above the CFL limit", lambda: simulate_with(dt=1.0), r"dt = 1 s is above the CFL limit: allowed \(0, .*\] s \(params\.cfl = 0\.3 times cfl_limit = .* s, h = 0\.1 m\)"),
     ("end time before the start", lambda: simulate_with(t_end=0.0), r"t_end = 0\.0 is invalid: allowed a finite time > state\.t = 0\.0 s"),
     ("zero outputs to simulate", lambda: simulate_with(n_out=0), r"n_out = 0 is invalid: allowed an integer >= 1"),
     ("infinite end time", lambda: simulate_with(t_end=float("inf")), r"t_end = inf is invalid: allowed a finite time > state\.t = 0\.0 s"),

@@ -71,6 +71,10 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
     (["--opt", "resolution=abc"], ["--opt resolution='abc'", "allowed a number"]),
     (["--opt", "shape=3"], ["--opt shape=3", "allowed a name"]),
+    (["debris_cloud", "--opt", "gap=abc"], ["gap = 'abc' is invalid", "allowed a finite number >= 0"]),   # default None: untyped
+    (["debris_cloud", "--opt", "gap=inf"], ["gap = inf is invalid", "allowed a finite number >= 0"]),
+    (["debris_cloud", "--opt", "gap=true"], ["gap = True is invalid", "allowed a finite number >= 0"]),
+    (["debris_cloud", "--opt", "gap=-0.001"], ["gap = -0.001 m puts the sphere into the plate"]),
     (["--t-end", "inf"], ["--t-end inf is invalid: allowed a finite time > 0 s"]),
     (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
     (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
@@ -238,14 +242,16 @@ def test_run_refuses_to_start_without_disk_space(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "o" / "elastic_impact.h5").exists()
 
 
-def test_output_size_estimate_covers_the_file(tmp_path):
+@pytest.mark.parametrize("name, options, t_end", [("elastic_impact", {"resolution": 0.25}, 0.2),
+                                                   ("taylor_bar", {"resolution": 0.3}, 1e-6)])    # axisymmetric: F (n, 3, 3)
+def test_output_size_estimate_covers_the_file(tmp_path, name, options, t_end):
     import jaxmpm
     from jaxmpm import io
 
-    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25)
+    scene = jaxmpm.load_scene(name, **options)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
-    _, hist = jaxmpm.simulate(scene, params, s0, t_end=0.2, n_out=3, progress=False)
+    _, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=3, progress=False)
     h5, xdmf = io.write(tmp_path / "a.h5", scene, hist)
     size = h5.stat().st_size + xdmf.stat().st_size
     est = io.estimate_bytes(scene, s0.x.shape[0], 4, s0.x.dtype.itemsize)

@@ -177,3 +177,20 @@ def _run20(scene):
         step = jaxmpm.make_step(scene)
         _CACHE[scene] = jax.jit(lambda p, s: jax.lax.fori_loop(0, 20, lambda i, s: step(p, s), s))
     return _CACHE[scene]
+
+
+def test_the_scene_file_format_documented_in_scenefile_loads_as_written():
+    """jaxmpm/scenefile.py's docstring (README points there for the format): its example is a
+    valid scene file, and every key its first paragraph lists is one the reader accepts."""
+    import re
+
+    import jaxmpm.scenefile as sf
+
+    example = "\n".join(line[4:] for line in sf.__doc__.splitlines()
+                        if line.startswith("    ") and not line.startswith("    {"))
+    scene = scene_from_toml(example)
+    assert scene.name == "block_on_floor" and [m.key for m in scene.materials] == ["soft", "plate"]
+    assert scene.materials[1].model == "hypoelastic"
+    listed = set(re.findall(r"\b[a-z_]+\b", sf.__doc__.split("\n\n")[1]))
+    for keys in (sf.TOP_KEYS, sf.GRID_KEYS, sf.EFFECT_KEYS, sf.OUTPUT_KEYS, sf.PHASE_KEYS):
+        assert set(keys) <= listed, set(keys) - listed

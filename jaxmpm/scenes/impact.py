@@ -59,7 +59,7 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
                          "(the heat is the drag's work between the projectile's and the plate's fields)")
     for name, value in (("resolution", resolution), ("speed", speed), ("plate_thickness", plate_thickness),
                         ("sphere_diameter", sphere_diameter), ("plate_radius", plate_radius), ("t_end", t_end)):
-        if not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
+        if isinstance(value, bool) or not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
             raise ValueError(f"debris_cloud: {name} = {value!r} is invalid: allowed a finite number > 0"
                              + (" (m/s, the impact speed toward the plate)" if name == "speed" else ""))
     h = 0.4e-3 / resolution
@@ -68,6 +68,9 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
                          f"plate (h = {h:g} m): allowed >= 4 cells, i.e. resolution >= "
                          f"{4 * 0.4e-3 / plate_thickness:.3g}")
     gap = h if gap is None else gap
+    if isinstance(gap, bool) or not (isinstance(gap, (int, float)) and abs(gap) < float("inf")):
+        raise ValueError(f"debris_cloud: gap = {gap!r} is invalid: allowed a finite number >= 0 (m, the distance from "
+                         "the sphere to the plate's top face; default: one cell)")
     if not gap >= 0:
         raise ValueError(f"debris_cloud: gap = {gap!r} m puts the sphere into the plate: allowed >= 0 "
                          "(the sphere must start above the plate's top face z = 0)")
