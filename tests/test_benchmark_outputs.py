@@ -36,3 +36,13 @@ def test_replot_refuses_a_missing_table_and_keeps_an_existing_figure(tmp_path):
     assert r.returncode == 2 and "mine.png exists" in r.stderr and (tmp_path / "mine.png").read_text() == "keep"
     r = run("--replot", str(tmp_path / "missing.csv"))
     assert r.returncode == 2 and "allowed an existing .csv table" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_compile_time_refuses_a_users_table_and_unknown_scenes_before_measuring(tmp_path):
+    (tmp_path / "compile_time.csv").write_text("keep")
+    run = lambda *a: subprocess.run([sys.executable, str(BENCH / "compile_time.py"), *a], capture_output=True, text=True,
+                                    timeout=120)
+    r = run("--out", str(tmp_path), "--scenes", "vibrating_bar")
+    assert r.returncode == 2 and "compile_time.csv exists" in r.stderr and (tmp_path / "compile_time.csv").read_text() == "keep"
+    r = run("--out", str(tmp_path / "new"), "--scenes", "no_such_scene")
+    assert r.returncode == 2 and "no_such_scene" in r.stderr and not (tmp_path / "new").exists()
