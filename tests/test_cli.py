@@ -256,3 +256,21 @@ def test_output_size_estimate_covers_the_file(tmp_path, name, options, t_end):
     size = h5.stat().st_size + xdmf.stat().st_size
     est = io.estimate_bytes(scene, s0.x.shape[0], 4, s0.x.dtype.itemsize)
     assert size <= est < 3 * size
+
+
+@pytest.mark.slow
+def test_the_readme_python_example_runs_as_written(capsys):
+    """README.md's first Python block ("Using it from Python"), executed as written: the run, the
+    plan and the compiled gradient, which must be finite and nonzero (a stiffer ball rebounds)."""
+    import pathlib
+    import re
+
+    import numpy as np
+
+    text = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
+    block = re.search(r"## Using it from Python\s+```python\n(.*?)```", text, re.S).group(1)
+    namespace = {}
+    exec(compile(block, "README.md", "exec"), namespace)
+    printed = float(capsys.readouterr().out.split()[-1])
+    assert np.isfinite(printed) and printed != 0.0
+    assert float(namespace["grad"](2.0e5)) == printed
