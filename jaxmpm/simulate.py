@@ -187,8 +187,8 @@ def _unmarked(fixed_dt: bool) -> tuple[str, ...]:
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def evolving_tangents(fixed_dt, state, inputs):
     """state itself. Its JVP gives every field that a step gives a tangent (all but `_unmarked`)
-    one already, depending on the nonzero tangents of (state, inputs) (its own tangent plus 0
-    times a sum of those), where JAX would know it to be zero until a first step had made it
+    one already, depending on the nonzero tangents of (state, inputs) (its own tangent plus a zero
+    selected against a sum of those), where JAX would know it to be zero until a first step had made it
     nonzero. A scan over the steps then starts with the tangents its steps produce, so that JAX
     linearizes its body once, not twice (its fixpoint over which carries have tangents; the step
     in `_fixed_fn`'s two nested scans was linearized four times). Values, derivatives and the
@@ -199,11 +199,14 @@ def evolving_tangents(fixed_dt, state, inputs):
 def _evolving_tangents_jvp(fixed_dt, primals, tangents):
     state, _ = primals
     dstate = tangents[0]
-    nonzero = [t for t in jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
-               if not isinstance(t, SymbolicZero) and jnp.issubdtype(t.dtype, jnp.inexact)]
+    nonzero = [jnp.asarray(t) for t in jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
+               if not isinstance(t, SymbolicZero)]
+    nonzero = [t for t in nonzero if jnp.issubdtype(t.dtype, jnp.inexact)]
     if not nonzero:
         return state, dstate
-    nil = sum(0 * jnp.sum(t).real for t in nonzero)          # zero, but a tangent: depends on the nonzero ones
+    # zero, but a tangent (it depends on the nonzero ones): selected, not multiplied by 0, so
+    # that an infinite tangent or cotangent (float32 adjoints can overflow) gives 0, not NaN
+    nil = sum(jax.lax.select(jnp.asarray(False), jnp.sum(t).real, jnp.zeros((), jnp.sum(t).real.dtype)) for t in nonzero)
     keep = _unmarked(fixed_dt)
 
     def marked(name, value, dvalue):

@@ -247,3 +247,16 @@ def test_jaxmpm_jit_nested_in_another_jit_traces_its_function_once():
     assert len(calls) == 1
     assert float(f(0.4)) == pytest.approx(np.sin(0.4) * 0.4, rel=1e-6)       # top level: with the options
     assert len(calls) == 2
+
+
+def test_marked_tangents_carry_no_infinity_into_a_derivative(small):
+    """The zero that `simulate.evolving_tangents` adds to the state's tangents is selected, not a
+    product with 0: an infinite cotangent of a field that does not depend on the parameter (here x,
+    for a derivative with respect to E) leaves the derivative what it is, not NaN; so does an
+    infinite input tangent in forward mode."""
+    sim = importlib.import_module("jaxmpm.simulate")
+    _, params, state = small
+    marked_x = lambda E: sim.evolving_tangents(False, state, (E,)).x
+    assert float(jax.grad(lambda E: jnp.sum(marked_x(E) * jnp.inf) + E ** 2)(3.0)) == 6.0
+    x_dot = jax.jvp(marked_x, (3.0,), (jnp.inf,))[1]
+    assert x_dot.shape == state.x.shape and np.all(np.asarray(x_dot) == 0.0)
