@@ -13,7 +13,6 @@ Two drivers share one step:
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import math
 import os
@@ -22,14 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jax.custom_derivatives import SymbolicZero
-
 from jaxmpm.compile import jit
 from jaxmpm.params import check_params
 # the run's arguments and step plan (jaxmpm.planning), importable from here as before
 from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
                              count as count, plan_steps as plan_steps, seconds)
 from jaxmpm.state import check_state, phase_slices
+from jaxmpm.tangents import evolving_tangents
 from jaxmpm.step import cfl_time_step, make_step
 
 
@@ -176,50 +174,6 @@ def _progress_bar(total: int, desc: str, enabled: bool):
     finally:
         _PROGRESS["bar"].close()
         _PROGRESS["bar"] = None
-
-
-# State fields whose tangent a step never changes: mass (constant) and, with a given dt, t
-# (t + dt: its tangent is that of t and dt, and marking it would give every step a tangent of dt)
-def _unmarked(fixed_dt: bool) -> tuple[str, ...]:
-    return ("mass", "t") if fixed_dt else ("mass",)
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def evolving_tangents(fixed_dt, state, inputs):
-    """state itself. Its JVP gives every field that a step gives a tangent (all but `_unmarked`)
-    one already, depending on the nonzero tangents of (state, inputs) (its own tangent plus a zero
-    selected against a sum of those), where JAX would know it to be zero until a first step had made it
-    nonzero. A scan over the steps then starts with the tangents its steps produce, so that JAX
-    linearizes its body once, not twice (its fixpoint over which carries have tangents; the step
-    in `_fixed_fn`'s two nested scans was linearized four times). Values, derivatives and the
-    compiled program are unchanged (but for that zero, once per run); only tracing is shorter."""
-    return state
-
-
-def _evolving_tangents_jvp(fixed_dt, primals, tangents):
-    state, _ = primals
-    dstate = tangents[0]
-    nonzero = [jnp.asarray(t) for t in jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
-               if not isinstance(t, SymbolicZero)]
-    nonzero = [t for t in nonzero if jnp.issubdtype(t.dtype, jnp.inexact)]
-    if not nonzero:
-        return state, dstate
-    # zero, but a tangent (it depends on the nonzero ones): selected, not multiplied by 0, so
-    # that an infinite tangent or cotangent (float32 adjoints can overflow) gives 0, not NaN
-    nil = sum(jax.lax.select(jnp.asarray(False), jnp.sum(t).real, jnp.zeros((), jnp.sum(t).real.dtype)) for t in nonzero)
-    keep = _unmarked(fixed_dt)
-
-    def marked(name, value, dvalue):
-        if value is None or name in keep:
-            return dvalue
-        base = jnp.zeros_like(value) if isinstance(dvalue, SymbolicZero) else dvalue
-        return base + nil.astype(value.dtype)
-
-    return state, dataclasses.replace(dstate, **{f.name: marked(f.name, getattr(state, f.name), getattr(dstate, f.name))
-                                                 for f in dataclasses.fields(state)})
-
-
-evolving_tangents.defjvp(_evolving_tangents_jvp, symbolic_zeros=True)
 
 
 @functools.lru_cache(maxsize=32)

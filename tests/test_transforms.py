@@ -215,7 +215,7 @@ def _derivatives(small, kinds):
 @pytest.mark.parametrize("kinds", [("reverse", "reverse_cfl_dt", "forward"),
                                    pytest.param(("forward_E_only", "vmapped"), marks=pytest.mark.slow)])
 def test_marking_the_evolving_tangents_changes_no_derivative(small, monkeypatch, kinds):
-    """`simulate.evolving_tangents` gives the state's fields their tangents before the scans (so
+    """`jaxmpm.tangents.evolving_tangents` (used by simulate) gives the state's fields their tangents before the scans (so
     that JAX linearizes each scan's body once): every derivative equals the one without it, for
     derivatives with respect to parameters only, to the initial state and to dt (where t keeps its
     own tangent), in both modes and under vmap."""
@@ -250,7 +250,7 @@ def test_jaxmpm_jit_nested_in_another_jit_traces_its_function_once():
 
 
 def test_marked_tangents_carry_no_infinity_into_a_derivative(small):
-    """The zero that `simulate.evolving_tangents` adds to the state's tangents is selected, not a
+    """The zero that `jaxmpm.tangents.evolving_tangents` (used by simulate) adds to the state's tangents is selected, not a
     product with 0: an infinite cotangent of a field that does not depend on the parameter (here x,
     for a derivative with respect to E) leaves the derivative what it is, not NaN; so does an
     infinite input tangent in forward mode."""
