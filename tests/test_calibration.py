@@ -186,6 +186,7 @@ def test_ensemble_names_a_member_that_falls_short_of_t_end():
         jaxmpm.ensemble(scene, batch, t_end=3e-7, n_out=1, n_steps=3)
 
 
+@pytest.mark.slow
 def test_ensemble_runs_again_when_its_own_plan_falls_short():
     """Without n_steps, ensemble plans them from the initial CFL step with a 25% margin; the
     impact's step shrinks more than that by 3e-7 s (31 planned steps reach 2.976e-7 s). It then
@@ -417,6 +418,7 @@ def test_fit_refuses_bad_arguments_before_any_run(options, match):
     assert all(calls)
 
 
+@pytest.mark.slow
 def test_the_fits_checks_after_the_optimiser_follow_no_progress(capfd):
     """`fit --no-progress` runs the fitted point once more (`reached`) and the landscape
     (`velocities_batch`): both without a progress bar when asked, with one by default."""

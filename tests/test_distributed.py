@@ -245,6 +245,7 @@ def two_blocks():
                  drag=10.0, t_end=1e-3, n_out=2)
 
 
+@pytest.mark.slow
 def test_one_device_mesh_runs_the_sharded_step_and_gives_the_same_run():
     scene = two_blocks()
     params = jaxmpm.default_params(scene)

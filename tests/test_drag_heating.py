@@ -69,6 +69,7 @@ def total_energy_ratio(scene):
     return float(diagnostics.total_energy(scene, params, final) / diagnostics.total_energy(scene, params, s0))
 
 
+@pytest.mark.slow
 def test_the_debris_cloud_keeps_its_energy_with_drag_heating_as_one_field_does():
     """The coarse debris cloud to 2 us (2 fields, C_d = 1; the drag does its work while the sphere
     goes through the plate): without the heat the drag's dissipation leaves the balance (2.8% of
@@ -95,6 +96,7 @@ def test_two_blocks_with_drag_heating_lose_what_they_lose_without_drag():
     assert free - cold > 0.01
 
 
+@pytest.mark.slow
 def test_the_heat_on_blocks_equals_the_whole_grids_and_its_gradient_matches_differences():
     """Three fields with drag heating, 60 steps through the contact: on blocks (Scene.window) the
     particles' energy equals the whole grid's to round-off; d(internal energy)/d(C_d) by reverse

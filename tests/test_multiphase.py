@@ -123,7 +123,7 @@ def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
     np.testing.assert_allclose(np.asarray(two.v[:nb]), np.asarray(one.v), rtol=0, atol=1e-11)
 
 
-@pytest.mark.parametrize("continuity", ["off", "transport"])
+@pytest.mark.parametrize("continuity", [pytest.param("off", marks=pytest.mark.slow), "transport"])
 def test_still_mixture_of_density_ratio_1000_stays_at_rest(continuity):
     heavy = jaxmpm.Material.make("heavy", "hypoelastic", rho0=1000.0, E=2.2e9 * 3 * (1 - 2 * 0.3), nu=0.3)
     light = jaxmpm.Material.make("light", "hypoelastic", rho0=1.0, E=1.4e5 * 3 * (1 - 2 * 0.3), nu=0.3)
@@ -198,7 +198,7 @@ def test_phase_in_a_field_that_does_not_exist():
               phases=(Phase("heavy", "heavy", box, field=0), Phase("light", "light", box, field=2)))
 
 
-@pytest.mark.parametrize("continuity", ["off", "transport"])
+@pytest.mark.parametrize("continuity", [pytest.param("off", marks=pytest.mark.slow), "transport"])
 def test_glued_bar_in_two_fields_matches_one_field(continuity):
     """A pre-compressed bar split at its middle into two fields glued by C_d = 1e9 rings like the
     same bar in one field: energy and the stress history at the cut within 5% (E14 at work)."""
@@ -362,6 +362,7 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
 
 
 # ------------------------------------------------------------------ grouping of an impact
+@pytest.mark.slow
 def test_impact_grouping_two_fields_converge_to_one_field_as_the_drag_grows():
     """Two equal aluminium blocks meet at +150 / -50 m/s (tests/impact_blocks.py), in one field or in
     two fields with C_d = 1e2, 1e4, 1e6 and the continuity form (E7; without it the C_d = 1e2 run
@@ -430,7 +431,8 @@ def push_water(continuity, shape):
     return out[False], out[True]
 
 
-@pytest.mark.parametrize("continuity,shape,tol", [("transport", "ddmp", 0.005), ("transport", "linear", 0.005),
+@pytest.mark.parametrize("continuity,shape,tol", [("transport", "ddmp", 0.005),
+                                                   pytest.param("transport", "linear", 0.005, marks=pytest.mark.slow),
                                                    ("off", "linear", 0.02)])
 def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(continuity, shape, tol):
     """10 kPa of gas pushes 0.2 m of water for 4 ms (3.4 gas transit times). The water's momentum

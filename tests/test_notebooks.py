@@ -11,7 +11,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipy
 
 
 # run with -m slow (the default run stays under 15 minutes on 2 cores)
-SLOW = {"debris_cloud", "calibration", "materials", "multiphase_basics", "projectile_concrete", "rod_penetration",
+SLOW = {"quickstart", "debris_cloud", "calibration", "materials", "multiphase_basics", "projectile_concrete", "rod_penetration",
         "sandwich_target", "taylor_bar", "taylor_brittle"}
 
 

@@ -141,7 +141,7 @@ def test_random_text_as_scene_file_gives_value_error(text):
 BOXES = (((0.25, 0.3), (0.5, 0.6)), ((0.35, 0.25), (0.65, 0.45)), ((0.2, 0.5), (0.8, 0.75)), ((0.4, 0.4), (0.6, 0.8)))
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(box=st.sampled_from(BOXES), vel=st.tuples(st.floats(-50, 50), st.floats(-50, 50)), E=st.floats(1e5, 1e9),
        nu=st.floats(-0.5, 0.45), rho=st.floats(10.0, 2e4), shape=st.sampled_from(["ddmp", "linear"]),
        fields=st.sampled_from([1, 2]))

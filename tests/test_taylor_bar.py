@@ -99,7 +99,7 @@ def test_johnson_cook_steel_rod_matches_two_finite_element_codes():
     assert float(jaxmpm.diagnostics.kinetic_energy(final)) < 0.02 * float(jaxmpm.diagnostics.kinetic_energy(s0))
 
 
-@pytest.mark.parametrize("resolution", [0.5, pytest.param(1.0, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("resolution", [pytest.param(0.5, marks=pytest.mark.slow), pytest.param(1.0, marks=pytest.mark.slow)])
 def test_bilinear_copper_bar_matches_the_converged_reference(resolution):
     """The copper bar of Wilkins & Guinan at resolution 0.5 (1010 particles) and, in the slow set,
     at the default resolution 1 (4040 particles, 68 s in the default run of a slow day): final

@@ -46,7 +46,7 @@ def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
     return grid, ddmp.build(grid, nodal_volume, jnp.asarray(cell_volume), axisymmetric)
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dim", [1, 2, pytest.param(3, marks=pytest.mark.slow)])
 def test_add_corners_equals_shifted_sums(dim):
     rng = np.random.default_rng(dim)
     cells = (3, 4, 2)[:dim]
@@ -59,7 +59,7 @@ def test_add_corners_equals_shifted_sums(dim):
 
 
 @pytest.mark.parametrize("native", [False, True])
-@pytest.mark.parametrize("dim,axisymmetric", [(1, False), (2, False), (3, False), (2, True)])
+@pytest.mark.parametrize("dim,axisymmetric", [(1, False), (2, False), pytest.param(3, False, marks=pytest.mark.slow), (2, True)])
 def test_ddmp_operators_equal_their_einsum_forms(dim, axisymmetric, native):
     """Both forms of the corner contractions (compile.native_reductions: reductions under
     jaxmpm.jit, unrolled sums elsewhere)."""
@@ -184,7 +184,7 @@ def test_contractions_inside_a_linearisation_keep_their_reduced_tangent():
         assert float(jnp.abs(b).max()) > 0
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dim", [1, 2, pytest.param(3, marks=pytest.mark.slow)])
 def test_add_corners_transposes_to_the_corner_slices(dim):
     """Reverse mode through the corner sums (E11, E12, E13, R3) evaluates `corners` of the
     cotangent: no loop over the corners carrying the whole cotangent of c (the transpose of the
@@ -257,7 +257,7 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     plain = lambda a: jnp.prod(a, -1)
     for a, b in zip(weights(x, shapes._product_over_axes), weights(x, plain)):
         np.testing.assert_array_equal(a, b)
-    for a, b in zip(weights(x, shapes._product_over_axes), weights_reference(x)):
+    for a, b in zip(weights(x, shapes._product_over_axes), jax.jit(weights_reference)(x)):
         np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
     reverse = jax.make_jaxpr(jax.grad(lambda x: sum(jnp.sum(jnp.sin(a)) for a in make(grid, x).__dict__.values()
                                                     if jnp.issubdtype(a.dtype, jnp.floating))))(x)
@@ -270,11 +270,12 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
         return sum(jnp.sum(ui * jnp.sin(3 * a)) for ui, a in zip(u, weights(x, product)))
 
     dx = jnp.asarray(rng.normal(size=x.shape))
-    g, g_ref = jax.grad(loss)(x, shapes._product_over_axes), jax.grad(loss)(x, plain)
+    gradient = jax.jit(jax.grad(loss), static_argnums=1)
+    g, g_ref = gradient(x, shapes._product_over_axes), gradient(x, plain)
     np.testing.assert_allclose(g, g_ref, rtol=1e-12, atol=1e-12)
     assert float(jnp.abs(g_ref).max()) > 0
-    hvp = jax.jvp(lambda x: jax.grad(loss)(x, shapes._product_over_axes), (x,), (dx,))[1]
-    hvp_ref = jax.jvp(lambda x: jax.grad(loss)(x, plain), (x,), (dx,))[1]
+    hvp = jax.jit(lambda x, dx: jax.jvp(lambda x: jax.grad(loss)(x, shapes._product_over_axes), (x,), (dx,))[1])(x, dx)
+    hvp_ref = jax.jit(lambda x, dx: jax.jvp(lambda x: jax.grad(loss)(x, plain), (x,), (dx,))[1])(x, dx)
     np.testing.assert_allclose(hvp, hvp_ref, rtol=1e-11, atol=1e-11)
 
 
@@ -312,7 +313,7 @@ def test_stencil_contractions_equal_einsums(dim, native):
     assert not (native and padded), f"{len(padded)} padded copies of an (N, S, d) argument in the gradient"
 
 
-@pytest.mark.parametrize("scatter_form", ["offset", "window"])
+@pytest.mark.parametrize("scatter_form", [pytest.param("offset", marks=pytest.mark.slow), "window"])   # offset: the benchmarks' reference
 @pytest.mark.parametrize("shape", ["bspline2", "linear"])
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):

@@ -34,6 +34,7 @@ def assert_same_step(scene, params, state, a, b):
     assert float(a.t) > 0 and stress_scale > 0
 
 
+@pytest.mark.slow
 def test_step_under_jit_equals_eager(small):
     scene, params, state = small
     step = jaxmpm.make_step(scene)
@@ -212,7 +213,7 @@ def _derivatives(small, kinds):
     return {k: every[k]() for k in kinds}
 
 
-@pytest.mark.parametrize("kinds", [("reverse", "reverse_cfl_dt", "forward"),
+@pytest.mark.parametrize("kinds", [pytest.param(("reverse", "reverse_cfl_dt", "forward"), marks=pytest.mark.slow),
                                    pytest.param(("forward_E_only", "vmapped"), marks=pytest.mark.slow)])
 def test_marking_the_evolving_tangents_changes_no_derivative(small, monkeypatch, kinds):
     """`jaxmpm.tangents.evolving_tangents` (used by simulate) gives the state's fields their tangents before the scans (so

@@ -43,10 +43,10 @@ CASES = {  # dim, axisymmetric, grid cells, the fields' occupied blocks, window
 }
 
 
-# 1D, 2D, axisymmetric (its own radius slices) and a field outgrowing its block in the default run;
-# 3D and the grid's edges (the 1D and 2D code with another geometry) in the slow set, to keep the
+# 2D, axisymmetric (its own radius slices) and a field outgrowing its block in the default run;
+# 1D, 3D and the grid's edges (the 2D code with another geometry) in the slow set, to keep the
 # default run under 15 minutes
-SLOW_CASES = ("2D at the grid's edges", "3D")
+SLOW_CASES = ("2D at the grid's edges", "3D", "1D")
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
