@@ -11,8 +11,8 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parents[1] / "notebooks").glob("*.ipy
 
 
 # run with -m slow (the default run stays under 15 minutes on 2 cores)
-SLOW = {"quickstart", "debris_cloud", "calibration", "materials", "multiphase_basics", "projectile_concrete", "rod_penetration",
-        "sandwich_target", "taylor_bar", "taylor_brittle"}
+SLOW = {"quickstart", "debris_cloud", "calibration", "materials", "multiphase_basics", "projectile_concrete",
+        "rod_penetration", "sandwich_target", "taylor_bar", "taylor_brittle"}
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p for p in NOTEBOOKS],
