@@ -90,5 +90,5 @@ def volume_fractions(scene, state):
     K = scene.n_fields
     field = jnp.asarray(particle_fields(scene)) if K > 1 else None
     vol = scatter_weighted(linear_stencil(grid, state.x), field, state.volume[:, None], K, grid.n_nodes)[..., 0]
-    theta = (vol / jnp.asarray(node_support(grid).reshape(-1), vol.dtype)).reshape((K,) + grid.nodes)
+    theta = (vol / jnp.asarray(node_support(grid, scene.axisymmetric).reshape(-1), vol.dtype)).reshape((K,) + grid.nodes)
     return theta, jnp.sum(theta, 0)

@@ -84,6 +84,31 @@ def test_johnson_cook_return_lands_on_the_hardened_yield_surface():
         assert seq == pytest.approx(Y, rel=1e-6)
 
 
+@pytest.mark.parametrize("name", ["tungsten_wha", "al2024", "copper_ofhc", "steel_4340"])
+def test_johnson_cook_yields_at_A_without_plastic_strain(name):
+    """Johnson-Cook's Y = A + B eps_p^n is A at eps_p = 0 (at the reference rate, room temperature):
+    a trial stress 3 MPa over A yields. Above eps_p = 1e-12, Y and dY/deps_p are Johnson-Cook's own;
+    below it the hardening is a straight line from 0 and dY its slope (central differences)."""
+    from jaxmpm.materials.hydro import EPS_P_RAMP, _flow_stress, radial_return
+    c = {k: jnp.asarray(v) for k, v in library_material(name).constants}
+    A, B, n = float(c["A"]), float(c["B"]), float(c["n"])
+    eps = jnp.asarray([0.0, 0.25e-12, 0.5e-12, 1e-12, 2e-12, 1e-6, 1e-3, 0.3])
+    Y, dY = _flow_stress("johnson_cook", c, eps, jnp.ones_like(eps), None, 0.0)
+    assert float(Y[0]) == A
+    np.testing.assert_allclose(Y[3:], A + B * np.asarray(eps[3:]) ** n, rtol=1e-14)
+    np.testing.assert_allclose(dY[4:], B * n * np.asarray(eps[4:]) ** (n - 1), rtol=1e-14)
+    assert np.all(np.diff(np.asarray(Y)) > 0)
+    for e0 in (0.5e-12, 1e-3):
+        h = 1e-3 * e0
+        (Yp, _), (Ym, _) = (_flow_stress("johnson_cook", c, jnp.asarray([e0 + s]), jnp.ones(1), None, 0.0) for s in (h, -h))
+        d = _flow_stress("johnson_cook", c, jnp.asarray([e0]), jnp.ones(1), None, 0.0)[1]
+        np.testing.assert_allclose(d, (Yp - Ym) / (2 * h), rtol=1e-5)
+    assert EPS_P_RAMP == 1e-12
+    s_tr = jnp.zeros((1, 3, 3)).at[0, 0, 1].set((A + 3e6) / np.sqrt(3)).at[0, 1, 0].set((A + 3e6) / np.sqrt(3))
+    _, dl = radial_return("johnson_cook", c, s_tr, jnp.zeros(1), jnp.ones(1), jnp.zeros(1), jnp.zeros(1))
+    assert float(dl[0]) > 0
+
+
 @pytest.mark.parametrize("strength", ["johnson_cook", "johnson_cook_thermal", "johnson_cook_plastic_rate",
                                       "johnson_cook_thermal_plastic_rate"])
 def test_johnson_cook_return_is_differentiated_as_its_root(strength):

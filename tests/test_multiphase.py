@@ -329,6 +329,19 @@ def test_volume_fractions_of_an_overlapping_mixture_sum_to_one():
     np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-12)
 
 
+def test_volume_fractions_of_a_filled_axisymmetric_block_are_one():
+    """Axisymmetric volumes are per radian, so is the nodes' support (R1): a block of material
+    fills its interior nodes, theta = 1 at every radius (a node at radius r would read r / 1 m if
+    divided by the plane support)."""
+    gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=1.0, K=1e3)
+    scene = Scene(grid=Grid(cells=(20, 10), h=0.05), materials=(gas,), axisymmetric=True,
+                  phases=(Phase("gas", "gas", Box((0.0, 0.0), (1.0, 0.5))),))
+    theta, total = jaxmpm.diagnostics.volume_fractions(scene, jaxmpm.init_state(scene, jaxmpm.default_params(scene)))
+    inner = np.asarray(theta[0, 1:-1, 1:-1])
+    np.testing.assert_allclose(inner, 1.0, rtol=2e-3)
+    np.testing.assert_allclose(np.asarray(total), np.asarray(theta[0]), rtol=0)
+
+
 def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag():
     """interface_forces = (0, 1): fields 0 and 1 share the common pressure; field 2 overlaps them but
     takes no part and, without drag, evolves exactly as when it is alone in its own scene; total

@@ -227,6 +227,9 @@ def thermal_softening(strength, c, e):
     return jnp.ones_like(e)
 
 
+EPS_P_RAMP = 1e-12   # plastic strain below which Johnson-Cook's hardening is linear in eps_p (`_flow_stress`)
+
+
 def _flow_stress(strength, c, eps, epsdot, softening, p):
     """Yield stress Y(eps_p) (N,) Pa and its derivative dY/deps_p; softening: `thermal_softening`."""
     strength = strength.removesuffix("_plastic_rate")
@@ -237,10 +240,16 @@ def _flow_stress(strength, c, eps, epsdot, softening, p):
     scale = rate_factor(c, epsdot)
     if strength == "johnson_cook_thermal":
         scale = scale * softening
-    eps_s = jnp.maximum(eps, 1e-12)
-    hardening = eps_s ** c["n"]                  # one power: eps^(n-1) = eps^n / eps
+    # One power per evaluation (eps^(n-1) = eps^n / eps). Below EPS_P_RAMP the hardening B eps^n
+    # is a straight line from 0, so that Y(0) = A at first yield (eps^n itself has an infinite
+    # slope there, which Newton's steps cannot take) and dY is that line's slope: finite and
+    # consistent with Y. Above it, Y and dY are Johnson-Cook's own.
+    eps_s = jnp.maximum(eps, EPS_P_RAMP)
+    power = eps_s ** c["n"]
+    below = eps < EPS_P_RAMP
+    hardening = jnp.where(below, power * (eps / EPS_P_RAMP), power)
     Y = (c["A"] + c["B"] * hardening) * scale
-    dY = c["B"] * c["n"] * (hardening / eps_s) * scale
+    dY = c["B"] * jnp.where(below, 1.0, c["n"]) * (power / eps_s) * scale
     return Y, dY
 
 
