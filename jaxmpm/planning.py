@@ -14,14 +14,9 @@ from jaxmpm.step import cfl_time_step
 
 
 def count(name: str, value, minimum: int = 1) -> int:
-    """An integer >= minimum given as an integer, an integral float or a string of digits;
-    ValueError naming the argument for anything else (a fraction is not truncated)."""
+    """An integer >= minimum given as an integer or an integral float; ValueError naming the
+    argument for anything else (a fraction is not truncated, a string is not a number)."""
     if not isinstance(value, bool):
-        if isinstance(value, str):
-            try:
-                value = int(value.strip())
-            except ValueError:
-                pass
         if isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer()):
             if int(value) >= minimum:
                 return int(value)
@@ -31,6 +26,8 @@ def count(name: str, value, minimum: int = 1) -> int:
 def check_t_end(t_end, t0) -> float:
     """t_end (s) as a float, finite and after the start time t0 (s)."""
     try:
+        if isinstance(t_end, (bool, str, bytes)):
+            raise TypeError
         t_end = float(t_end)
     except (TypeError, ValueError):
         raise ValueError(f"t_end = {t_end!r} is invalid: allowed a number of seconds > state.t = {float(t0)} s") from None
@@ -42,7 +39,7 @@ def check_t_end(t_end, t0) -> float:
 def seconds(name: str, value) -> float:
     """A time argument (s) as a float; ValueError naming it where it is not a number."""
     try:
-        if isinstance(value, bool):
+        if isinstance(value, (bool, str, bytes)):      # "1e-3" is text, not a time: say so rather than parse it
             raise TypeError
         return float(value)
     except (TypeError, ValueError):
@@ -99,13 +96,39 @@ def check_memory(scene, state) -> None:
     """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
     numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
     guess (a larger grid can still run out of memory later)."""
+    check_scene_memory(scene, np.asarray(state.x).dtype.itemsize)
+
+
+def lattice_points(grid, phase) -> int:
+    """The number of lattice points `state.sample_phase` lays over the phase's bounding box (ppc^d per
+    cell of the grid that the box touches), before it keeps those inside the geometry."""
+    lo = np.asarray(grid.origin, float)
+    c_lo = np.maximum(np.floor((np.asarray(phase.geometry.lo) - lo) / grid.h).astype(np.int64), 0)
+    c_hi = np.minimum(np.ceil((np.asarray(phase.geometry.hi) - lo) / grid.h).astype(np.int64), np.asarray(grid.cells))
+    return math.prod(max(int(b - a), 0) * phase.ppc for a, b in zip(c_lo, c_hi))
+
+
+def check_scene_memory(scene, itemsize: int = 8) -> None:
+    """ValueError before particles are sampled where the grid (as `check_memory`) or a phase's
+    particle lattice cannot fit in the memory available: the lattice's positions alone, d numbers
+    per point, are less than sampling holds, so a refusal is certain, not a guess."""
     avail = available_memory()
+    if avail is None:
+        return
     nodes = math.prod(c + 1 for c in scene.grid.cells)
-    need = nodes * scene.n_fields * NUMBERS_PER_NODE * np.asarray(state.x).dtype.itemsize
-    if avail is not None and need > avail:
+    need = nodes * scene.n_fields * NUMBERS_PER_NODE * itemsize
+    if need > avail:
         raise ValueError(f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
                          f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
                          "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)")
+    for phase in scene.phases:
+        points = lattice_points(scene.grid, phase)
+        need = points * scene.dim * 8          # sampled in float64 on the host
+        if need > avail:
+            raise ValueError(f"phase.{phase.name}.ppc = {phase.ppc} is invalid with grid.h = {scene.grid.h:g} m: sampling "
+                             f"lays {points:,} particle positions over the phase's bounding box, more than "
+                             f"{need / 2**30:.1f} GiB of memory where {avail / 2**30:.1f} GiB are available (allowed fewer "
+                             "particles: a smaller ppc, or a larger h with --opt resolution / grid.h)")
 
 
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:

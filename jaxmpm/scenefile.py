@@ -38,6 +38,7 @@ A geometry is { type = "box", lo, hi }, { type = "sphere", center, radius } or
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 from typing import Any, Mapping
@@ -108,6 +109,8 @@ def scene_from_dict(d: Mapping) -> Scene:
         spec = dict(spec)
         if "library" in spec:
             lib = _typed(spec.pop("library"), (str,), f"materials.{key}.library", "a library material key")
+            if lib not in known_keys():
+                raise ValueError(f"materials.{key}.library = {lib!r} is invalid: allowed one of {list(known_keys())}")
             model = _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name") if "model" in spec else None
             mats.append(library_material(lib, model, key, **spec))
             continue
@@ -298,6 +301,17 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def _builder_options(name, build, options) -> dict:
+    """options, checked against the built-in scene's builder: ValueError naming an unknown one and
+    listing those the builder takes (`jaxmpm scenes` shows them with their defaults)."""
+    params = inspect.signature(build).parameters
+    allowed = [p for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)]
+    unknown = sorted(set(options) - set(allowed))
+    if unknown and not any(v.kind == v.VAR_KEYWORD for v in params.values()):
+        raise ValueError(f"{name}: option(s) {unknown} are unknown: allowed {allowed}")
+    return options
+
+
 def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **options) -> Scene:
     """A built-in scene by name (options are passed to its builder, e.g. resolution=0.5), or a
     scene file (.toml path). overrides: {'dotted.key': value} applied to the scene's dict form."""
@@ -320,13 +334,16 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
         d = parse_toml(text, path)
         source = f"{path}: "            # errors in the file's contents name it
     elif path in BUILTINS:
-        scene = BUILTINS[path].build(**options)
+        scene = BUILTINS[path].build(**_builder_options(path, BUILTINS[path].build, options))
         if not overrides:
             return scene
         d = scene_to_dict(scene)
         source = ""
     else:
         raise ValueError(f"scene {path!r} is neither a built-in scene nor a .toml file: built-ins are {sorted(BUILTINS)}")
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise ValueError(f"overrides = {overrides!r} is invalid: allowed a mapping {{'dotted.key': value}}, "
+                         "e.g. {'grid.cells': [32, 32]}")
     for k, v in (overrides or {}).items():
         set_dotted(d, k, v)
     try:

@@ -91,6 +91,9 @@ def check_sampling(scene) -> None:
     (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's
     phases in one field share a region with fractions that sum to at most 1). Bodies of different
     fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
+    from jaxmpm.planning import check_scene_memory
+
+    check_scene_memory(scene)          # before sampling: a lattice too large for memory is refused, not swapped
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h

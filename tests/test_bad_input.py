@@ -252,6 +252,9 @@ CASES = [
     ("step plan with a safety below 1", lambda: plan_with(safety=0.5), r"safety = 0\.5 is invalid: allowed a number >= 1"),
     ("end time as a word", lambda: simulate_with(t_end="abc"), r"t_end = 'abc' is invalid: allowed a number of seconds"),
     ("time step as a list", lambda: simulate_with(dt=[1e-5]), r"dt = \[1e-05\] is invalid: allowed a number of seconds"),
+    ("end time as numeric text", lambda: simulate_with(t_end="0.01"), r"t_end = '0\.01' is invalid: allowed a number of seconds"),
+    ("time step as numeric text", lambda: simulate_with(dt="1e-4"), r"dt = '1e-4' is invalid: allowed a number of seconds"),
+    ("output count as text", lambda: simulate_with(n_out="2"), r"n_out = '2' is invalid: allowed an integer >= 1"),
     ("boundary faces as one name", lambda: Boundary(faces="y_lo"), r"boundary\.faces = 'y_lo' is invalid: allowed pairs \(face, kind\)"),
     ("one face given two conditions", lambda: Boundary(faces=(("y_lo", "fixed"), ("y_lo", "free"))),
      r"boundary\.y_lo = \['fixed', 'free'\] is invalid: allowed one condition per face"),
@@ -272,7 +275,11 @@ CASES = [
      r"phase\[0\]\.geometry is missing"),
     ("scene file without phases", lambda: scene_from_toml(FILE.split("[[phase]]")[0]), r"phase is missing: a scene needs at least one \[\[phase\]\]"),
     ("library material with an unknown key", lambda: scene_from_toml(FILE.replace('model = "linear_elastic"\nrho0 = 1000.0\nE = 1e6\nnu = 0.3', 'library = "adamantium"')),
-     r"material key 'adamantium' is unknown: known keys are"),
+     r"materials\.m\.library = 'adamantium' is invalid: allowed one of \['air', 'al2024'"),
+    ("a built-in scene's option misspelt", lambda: jaxmpm.load_scene("debris_cloud", resolutoin=0.75),
+     r"debris_cloud: option\(s\) \['resolutoin'\] are unknown: allowed \['resolution', 'fields'"),
+    ("overrides as text", lambda: jaxmpm.load_scene("elastic_impact", overrides="grid.cells=[32,32]"),
+     r"overrides = 'grid.cells=\[32,32\]' is invalid: allowed a mapping \{'dotted.key': value\}"),
 ]
 
 
@@ -280,6 +287,18 @@ CASES = [
 def test_bad_input_gets_a_clear_error(kind, action, pattern):
     with pytest.raises(ValueError, match=pattern):
         action()
+
+
+def test_particles_beyond_the_memory_are_refused_before_they_are_sampled(monkeypatch):
+    """With 1 GiB available, a 2000^2 grid fits (0.5 GiB at 16 numbers per node) but 8 x 8 particles
+    per cell over it (2.6e8 positions, 4.1 GiB) do not: the scene is refused before sampling."""
+    import jaxmpm.planning
+    monkeypatch.setattr(jaxmpm.planning, "available_memory", lambda: 2**30)
+    big = dict(grid=Grid(cells=(2000, 2000), h=1e-3))
+    scene(**big, phases=(Phase("block", "m", Box((0.2, 0.2), (0.3, 0.3)), ppc=8),))      # a small body is sampled
+    with pytest.raises(ValueError, match=r"phase\.block\.ppc = 8 is invalid with grid\.h = 0\.001 m: sampling lays "
+                                         r"256,000,000 particle positions over the phase's bounding box, more than 3\.8 GiB"):
+        scene(**big, phases=(Phase("block", "m", Box((0.0, 0.0), (2.0, 2.0)), ppc=8),))
 
 
 def test_an_error_in_a_scene_files_contents_names_the_file(tmp_path):
