@@ -146,12 +146,14 @@ def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, 
 
 
 def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
-             checkpoint="auto", shard=True, allow_short=False, progress=True):
+             checkpoint="auto", shard=True, allow_short=False, progress=True, safety=1.25):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
     Returns (final, history) like `simulate`, each leaf with a leading axis B. n_steps: scan steps
-    per member (default: the most any member's CFL step needs, planned on the host). checkpoint:
+    per member (default: the most any member's CFL step needs, planned on the host: `safety` >= 1
+    times the steps at each member's initial CFL step; an impact, whose shocked material carries
+    faster waves, may need 1.4). checkpoint:
     as in `simulate` ("auto", the default, counts the stored states of all B members). shard: split
     the batch across all devices when more than one exists. progress: a bar of the steps run (all
     members advance together). The members' results equal their single runs with the same n_steps
@@ -182,7 +184,7 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         _as_member(i if batched_state else None, check_t_end, t_end, s.t)
     planned = n_steps is None
     if planned:
-        n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end)
+        n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end, safety=safety)
                       for i, p in enumerate(members))
     if not batched_state:
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
@@ -204,7 +206,7 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         replanned = int(math.ceil(1.1 * n_steps / rate))
         warnings.warn(f"{scene.name}: the planned n_steps = {n_steps} reached only t = {reached[short].min():g} s of "
                       f"t_end = {t_end:g} s (the CFL step shrank during the run): running the batch again with "
-                      f"n_steps = {replanned}; pass n_steps to fix it", RuntimeWarning, stacklevel=2)
+                      f"n_steps = {replanned}; pass n_steps, or a safety above {safety:g}, to fix it", RuntimeWarning, stacklevel=2)
         n_steps = replanned
         final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B,
                                       progress)
