@@ -127,8 +127,13 @@ def cmd_run(args) -> int:
     if args.restart_every < 0:
         raise ValueError(f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)")
     if args.resume:
-        scene = restart.load(path)["scene"]
+        saved = restart.load(path)
+        scene = saved["scene"]
         out = path.parent
+        if saved["next_out"] == saved["n_out"]:
+            raise ValueError(f"--resume {args.resume}: the run saved in {path} is complete (t_end = {saved['t_end']:g} s "
+                             f"reached, {saved['n_out']} outputs): nothing to resume; its outputs are written beside "
+                             f"it, as {scene.name}.h5 (run it again: jaxmpm run with --overwrite)")
     else:
         scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
         out = Path(args.out)
@@ -138,8 +143,9 @@ def cmd_run(args) -> int:
     xdmf = io.xdmf_path(h5)
     rfile = out / f"{scene.name}.restart.h5"
     if not args.resume and not args.overwrite and rfile.is_file() and not h5.exists():
-        raise FileExistsError(f"{rfile} exists: a run of {scene.name} into {out} was interrupted; continue it with "
-                              f"`jaxmpm run --resume {out}`, or pass --overwrite to start again (which discards it)")
+        raise FileExistsError(f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
+                              f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
+                              "(which discards it)")
     io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
     if args.resume:
@@ -176,6 +182,11 @@ def cmd_run(args) -> int:
                      if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
             print(f"\ninterrupted: {saved}", file=sys.stderr)
             return 130
+        except FloatingPointError as e:
+            if args.restart_every and rfile.is_file():
+                e.args = (f"{e}\n{rfile} holds the last state saved before the failure: resuming it meets the same "
+                          "failure; fix the scene and start again with --overwrite",)
+            raise
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)

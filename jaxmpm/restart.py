@@ -215,13 +215,17 @@ def load(path) -> dict:
 
 def resume(path, *, progress=True, restart_every=None):
     """Continue the run saved in restart file `path` to its end; returns (scene, params, final,
-    history) as `simulate` would have. restart_every: keep saving every so many chunks."""
+    history) as `simulate` would have (of a complete run, its saved results, with nothing run).
+    restart_every: keep saving every so many chunks."""
     from jaxmpm.simulate import _host_driver
 
     if not (restart_every is None or (isinstance(restart_every, (int, np.integer)) and restart_every >= 0)):
         raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed None or an integer >= 0 "
                          "(chunks; 0 or None: do not save)")
     r = load(path)
+    if r["next_out"] == r["n_out"]:        # the run is complete: its results, nothing to run
+        from jaxmpm.simulate import _stack
+        return r["scene"], r["params"], r["state"], _stack(r["history"])
     dt = None if r["dt"] is None else jnp.asarray(r["dt"], r["state"].t.dtype)
     final, history = _host_driver(r["scene"], r["params"], r["state"], r["t_end"], r["n_out"], dt, progress, r["chunk"],
                                   t0=r["t0"], history=r["history"], start_out=r["next_out"],

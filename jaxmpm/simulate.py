@@ -252,7 +252,7 @@ def find_nonfinite(scene, state):
     out = np.any((x < lo) | (x > hi), axis=1)
     if out.any():
         i = int(np.argmax(out))
-        return (f"particle {i} of phase {_phase_of(scene, i)!r} left the grid at t = {float(state.t):.6g} s: "
+        return (f"particle {i} of phase {_phase_of(scene, i)!r} is outside the grid at t = {float(state.t):.6g} s: "
                 f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)")
     return None
 
@@ -420,7 +420,8 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                         from jaxmpm.distributed import from_shards, mesh_size
                         here = from_shards(scene, state, mesh_size(mesh))
                     msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
-                    raise FloatingPointError(f"{scene.name}: {msg} (chunk {n_chunks} of {chunk} steps)")
+                    raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
+                                             "debug=True, or jaxmpm run --debug, names the step where it happened)")
                 if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
                     raise FloatingPointError(
                         f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "

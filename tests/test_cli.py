@@ -54,6 +54,22 @@ def test_run_writes_outputs_and_refuses_second_run(tmp_path, capsys, monkeypatch
     assert cli.main(["run", "--out", str(tmp_path), "--overwrite", *TINY]) == 0
 
 
+def test_a_failed_run_exits_1_and_says_what_its_restart_file_holds(tmp_path, capsys):
+    """A disk thrown out of the grid: exit status 1, the particle named, the restart file left with
+    a word on what resuming it would do; a second run into the folder names it as interrupted or
+    failed."""
+    argv = ["run", "--out", str(tmp_path), "--no-progress", "--opt", "resolution=0.25", "--t-end", "0.05",
+            "--set", "phase.disk_a.velocity=[-15,0]"]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "particle 0 of phase 'disk_a' is outside the grid at t = " in err
+    assert "names the step where it happened" in err
+    assert f"{tmp_path / 'elastic_impact.restart.h5'} holds the last state saved before the failure" in err
+    assert not any(p.exists() for p in _outputs(tmp_path))
+    assert cli.main(argv) == 2
+    assert "was interrupted or failed" in capsys.readouterr().err
+
+
 def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     png = _outputs(tmp_path)[2]
     png.write_bytes(b"keep")

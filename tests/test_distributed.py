@@ -234,7 +234,7 @@ def test_two_processes_give_the_one_process_results(tmp_path):
     np.testing.assert_allclose(got["batch_v"], np.asarray(ref.v), rtol=1e-9, atol=1e-11 * float(np.max(np.abs(ref.v))))
     np.testing.assert_allclose(got["batch_x"], np.asarray(ref.x), rtol=1e-12)
     assert not np.allclose(got["batch_v"][0], got["batch_v"][2])            # the members differ
-    assert "particle" in str(got["error"]) and "of phase 'block' left the grid" in str(got["error"])
+    assert "particle" in str(got["error"]) and "of phase 'block' is outside the grid" in str(got["error"])
 
 
 def two_blocks():

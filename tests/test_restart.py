@@ -2,6 +2,7 @@
 leaves the previous restart file readable."""
 import dataclasses
 import os
+import warnings
 
 import h5py
 import numpy as np
@@ -52,6 +53,11 @@ def test_resumed_run_is_bit_identical(small, tmp_path):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     np.testing.assert_array_equal(np.asarray(hist.x), np.asarray(hist_full.x))
     np.testing.assert_array_equal(np.asarray(hist.t), np.asarray(hist_full.t))
+    with warnings.catch_warnings():      # a complete run resumed: its saved results, no progress bar to clamp
+        warnings.simplefilter("error")
+        _, _, final2, hist2 = restart.resume(path, progress=True)
+    np.testing.assert_array_equal(np.asarray(final2.x), np.asarray(full.x))
+    np.testing.assert_array_equal(np.asarray(hist2.x), np.asarray(hist_full.x))
 
 
 def test_interrupted_write_keeps_the_previous_restart_file(small, tmp_path, monkeypatch):
@@ -116,7 +122,7 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     assert not (out / "elastic_impact.h5").exists()
     assert cli.main(argv) == 2                        # the same command again: it points to --resume, not --overwrite alone
     err = capsys.readouterr().err
-    assert f"continue it with `jaxmpm run --resume {out}`" in err and "discards it" in err
+    assert f"continue an interrupted run with `jaxmpm run --resume {out}`" in err and "discards it" in err
     assert cli.main(["run", "--resume", str(out / "elastic_impact.restart.h5"), "--no-progress"]) == 0   # the file, named
     _, history = io.read(out / "elastic_impact.h5")
     scene = dataclasses.replace(jaxmpm.load_scene("elastic_impact", resolution=0.25), t_end=1.5, n_out=3)
@@ -124,6 +130,8 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     chunk = restart.load(out / "elastic_impact.restart.h5")["chunk"]
     _, full = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), progress=False, chunk=chunk)
     np.testing.assert_array_equal(np.asarray(history.x), np.asarray(full.x))
+    assert cli.main(["run", "--resume", str(out), "--no-progress"]) == 2           # complete: nothing to resume
+    assert "is complete (t_end = 1.5 s reached, 3 outputs): nothing to resume" in capsys.readouterr().err
     assert cli.main(["run", "--resume", str(tmp_path), "--no-progress"]) == 2     # no restart file there
     assert "expected one *.restart.h5" in capsys.readouterr().err
     assert cli.main(["run", "--resume", str(tmp_path / "nowhere"), "--no-progress"]) == 2

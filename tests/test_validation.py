@@ -133,7 +133,7 @@ def test_particle_leaving_the_grid_stops_the_run_with_a_message():
     scene = _scene(phases=(Phase("block", "m", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
-    with pytest.raises(FloatingPointError, match=r"particle \d+ of phase 'block' left the grid at t = .* allowed"):
+    with pytest.raises(FloatingPointError, match=r"particle \d+ of phase 'block' is outside the grid at t = .* allowed"):
         jaxmpm.simulate(scene, params, state, progress=False)
 
 
