@@ -34,8 +34,12 @@ def _pairs(items, flag: str) -> dict:
     out = {}
     for item in items or ():
         key, sep, value = item.partition("=")
+        example = "grid.h=0.01" if flag == "--set" else "resolution=0.5"
         if not sep or not key.strip():
-            raise ValueError(f"{flag} {item!r} is invalid: allowed {flag} key=value (e.g. {flag} t_end=0.5)")
+            raise ValueError(f"{flag} {item!r} is invalid: allowed {flag} key=value (e.g. {flag} {example})")
+        if key.strip() in out:
+            raise ValueError(f"{flag} {key.strip()} is given twice ({out[key.strip()]!r} and {value.strip()!r}): "
+                             "allowed once")
         out[key.strip()] = parse_value(value.strip())
     return out
 
@@ -101,6 +105,8 @@ def _check_run_args(args) -> None:
         return
     args.scene = DEFAULT_SCENE if args.scene is None else args.scene
     args.out = "out" if args.out is None else args.out
+    if not args.out.strip():
+        raise ValueError("--out '' is invalid: allowed a folder name (new or existing)")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ValueError(f"--out {args.out} is a file: allowed a folder (new or existing)")
     if args.t_end is not None and not (math.isfinite(args.t_end) and args.t_end > 0):
@@ -166,7 +172,7 @@ def cmd_run(args) -> int:
         phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
         print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
               f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
-              f"{state.x.dtype}", flush=True)
+              f"{state.x.dtype}, into {h5}", flush=True)
         start = diagnostics.summary(scene, params, state)
         itemsize = state.x.dtype.itemsize
         io.check_space(out, io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
@@ -221,6 +227,8 @@ def cmd_materials(args) -> int:
                                           table_provenance)
     from jaxmpm.materials.models import model_of
 
+    if args.key is None and args.model is not None:
+        raise ValueError(f"--model {args.model} needs a library key: jaxmpm materials KEY --model {args.model}")
     if args.key is None:
         width = max(map(len, known_keys()))
         print(f"{'key':<{width}}  {'default model':<62}  sub-tables it reads that are not yet verified")

@@ -83,6 +83,9 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     (["--set", "phase.disk_z.velocity=[1.0,0.0]"], ["disk_z"]),
     (["--set", "cfl=2.0"], ["cfl"]),
     (["--set", "no_equals_sign"], ["--set", "key=value"]),
+    (["--opt", "resolution"], ["--opt key=value (e.g. --opt resolution=0.5)"]),
+    (["--opt", "resolution=0.5", "--opt", "resolution=0.25"], ["--opt resolution is given twice (0.5 and '0.25')"]),
+    (["--out", ""], ["--out '' is invalid: allowed a folder name"]),
     (["--opt", "res=0.5"], ["res", "resolution"]),
     (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
     (["--opt", "resolution=abc"], ["--opt resolution='abc'", "allowed a number"]),
@@ -208,6 +211,11 @@ def test_materials_lists_each_key_with_the_unverified_tables_its_default_model_r
         unverified = [sub for sub, t in toml[key].items() if sub in subs and not t["verified"]]
         assert lines[key].split()[1] == model
         assert lines[key].split(None, 2)[2].strip() == (", ".join(unverified) or "-"), key
+
+
+def test_materials_model_without_a_key_is_refused(capsys):
+    assert cli.main(["materials", "--model", "hypoelastic"]) == 2
+    assert "--model hypoelastic needs a library key" in capsys.readouterr().err
 
 
 def test_materials_rejects_an_unknown_key_or_model(capsys):
