@@ -93,7 +93,7 @@ def check_sampling(scene) -> None:
     fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
     from jaxmpm.planning import check_scene_memory
 
-    check_scene_memory(scene)          # before sampling: a lattice too large for memory is refused, not swapped
+    check_scene_memory(scene, itemsize=4)   # before sampling (grid at float32, the least a run holds): refused, not swapped
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
