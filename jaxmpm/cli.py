@@ -115,10 +115,40 @@ def _check_run_args(args) -> None:
         raise ValueError(f"--n-out {args.n_out} is invalid: allowed an integer >= 1")
 
 
+def _new_folders(out: Path) -> list[Path]:
+    """The folders of `out` (itself and those above it) that do not exist yet, deepest first."""
+    new = []
+    for folder in (out, *out.parents):
+        if os.path.lexists(folder):
+            break
+        new.append(folder)
+    return new
+
+
 def cmd_run(args) -> int:
+    """`jaxmpm run`; a run that stops (an error, Ctrl-C) before writing anything removes the folders
+    it created for --out, so a refused run leaves nothing behind."""
+    _check_run_args(args)
+    made = [] if args.resume else _new_folders(Path(args.out))
+
+    def remove_empty():
+        for folder in made:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+
+    try:
+        code = _run(args)
+    except BaseException:
+        remove_empty()
+        raise
+    if code != 0:           # interrupted (130): nothing saved yet leaves no folder
+        remove_empty()
+    return code
+
+
+def _run(args) -> int:
     import jax
 
-    _check_run_args(args)
     if args.resume:
         path = _resume_file(args.resume)
         from jaxmpm.restart import dtype     # names the file if it is not a complete restart file
