@@ -18,7 +18,6 @@ exits with status 2; a run that becomes non-finite exits with status 1.
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import os
 import sys
@@ -47,10 +46,11 @@ def _pairs(items, flag: str) -> dict:
 def _load(name: str, overrides: dict, options: dict):
     """The scene `name` (built-in or .toml) with builder options and --set overrides applied."""
     import jaxmpm
+    from jaxmpm.scenefile import builder_options
     from jaxmpm.scenes import BUILTINS
 
     if options and name in BUILTINS:
-        parameters = inspect.signature(BUILTINS[name].build).parameters
+        parameters = builder_options(BUILTINS[name].build)
         allowed = list(parameters)
         for k, v in options.items():
             if k not in allowed:

@@ -9,7 +9,7 @@ import numbers
 import numpy as np
 
 from jaxmpm.params import check_params
-from jaxmpm.state import check_state
+from jaxmpm.state import check_state, lattice_cells
 from jaxmpm.step import cfl_time_step
 
 
@@ -102,9 +102,7 @@ def check_memory(scene, state) -> None:
 def lattice_points(grid, phase) -> int:
     """The number of lattice points `state.sample_phase` lays over the phase's bounding box (ppc^d per
     cell of the grid that the box touches), before it keeps those inside the geometry."""
-    lo = np.asarray(grid.origin, float)
-    c_lo = np.maximum(np.floor((np.asarray(phase.geometry.lo) - lo) / grid.h).astype(np.int64), 0)
-    c_hi = np.minimum(np.ceil((np.asarray(phase.geometry.hi) - lo) / grid.h).astype(np.int64), np.asarray(grid.cells))
+    c_lo, c_hi = lattice_cells(grid, phase)
     return math.prod(max(int(b - a), 0) * phase.ppc for a, b in zip(c_lo, c_hi))
 
 

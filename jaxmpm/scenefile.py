@@ -301,13 +301,18 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def builder_options(build) -> dict:
+    """{name: inspect.Parameter} of the options a built-in scene's builder takes by name."""
+    params = inspect.signature(build).parameters
+    return {p: v for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)}
+
+
 def _builder_options(name, build, options) -> dict:
     """options, checked against the built-in scene's builder: ValueError naming an unknown one and
     listing those the builder takes (`jaxmpm scenes` shows them with their defaults)."""
-    params = inspect.signature(build).parameters
-    allowed = [p for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)]
+    allowed = list(builder_options(build))
     unknown = sorted(set(options) - set(allowed))
-    if unknown and not any(v.kind == v.VAR_KEYWORD for v in params.values()):
+    if unknown:
         raise ValueError(f"{name}: option(s) {unknown} are unknown: allowed {allowed}")
     return options
 

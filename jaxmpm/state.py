@@ -57,14 +57,22 @@ jax.tree_util.register_dataclass(
     meta_fields=[])
 
 
+def lattice_cells(grid, phase) -> tuple[np.ndarray, np.ndarray]:
+    """(first, past-last) cell index per axis (d,) int64 of the grid cells the phase's bounding box
+    touches: `sample_phase` lays its lattice over them."""
+    lo = np.asarray(grid.origin, float)
+    c_lo = np.maximum(np.floor((np.asarray(phase.geometry.lo) - lo) / grid.h).astype(np.int64), 0)
+    c_hi = np.minimum(np.ceil((np.asarray(phase.geometry.hi) - lo) / grid.h).astype(np.int64), np.asarray(grid.cells))
+    return c_lo, c_hi
+
+
 @functools.lru_cache(maxsize=64)
 def sample_phase(grid, phase) -> np.ndarray:
     """Particle positions (n, d) of a phase: ppc^d points per cell on a regular lattice,
     kept where inside the geometry. Deterministic."""
     h, ppc, d = grid.h, phase.ppc, grid.dim
     lo = np.asarray(grid.origin)
-    c_lo = np.maximum(np.floor((np.asarray(phase.geometry.lo) - lo) / h).astype(int), 0)
-    c_hi = np.minimum(np.ceil((np.asarray(phase.geometry.hi) - lo) / h).astype(int), np.asarray(grid.cells))
+    c_lo, c_hi = lattice_cells(grid, phase)
     axes = [lo[k] + (np.arange(c_lo[k] * ppc, c_hi[k] * ppc) + 0.5) * h / ppc for k in range(d)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, d)
     return pts[phase.geometry.contains(pts)]
