@@ -26,4 +26,15 @@ from jaxmpm.state import State as State, init_state as init_state
 from jaxmpm.step import make_step as make_step
 from jaxmpm.scenes import initial_state as initial_state
 
-__version__ = "0.1.0"
+def _version() -> str:
+    """The installed distribution's version (pyproject.toml); '0+unknown' when run from a checkout
+    that is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("jaxmpm")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+__version__ = _version()

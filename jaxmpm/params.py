@@ -45,7 +45,7 @@ class Params:
     av_quadratic: jax.Array
 
     def with_constant(self, phase: str, name: str, value) -> "Params":
-        """A copy with params.phases[phase][name] = value."""
+        """A copy with `params.phases[phase][name] = value`."""
         if phase not in self.phases:
             raise ValueError(f"params.phases[{phase!r}] is unknown: phases are {list(self.phases)}")
         if name not in self.phases[phase]:

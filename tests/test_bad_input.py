@@ -387,6 +387,6 @@ if __name__ == "__main__":
             action()
             msg = "(no error)"
         except ValueError as e:
-            msg = str(e).replace("|", "\\|").replace("\n", " ")
+            msg = str(e).replace("|", "\\|").replace("\n", " ").replace("[", "\\[")   # [ escaped: not a link
         print(f"| {i} | {kind} | {msg} |")
     sys.exit(0)

@@ -60,7 +60,7 @@ class Material:
         temperatures K, times s: each model's table in jaxmpm.materials.models gives the unit of
         each), e.g. Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0) or
         Material.make("gas", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0). Model kinds:
-        jaxmpm.materials.models (one-piece kinds and 'eos[+strength][+failure...]' compositions)."""
+        jaxmpm.materials.models (one-piece kinds and `'eos[+strength][+failure...]'` compositions)."""
         return Material(key, model, tuple(constants.items()))
 
     def as_dict(self) -> dict[str, float]:
