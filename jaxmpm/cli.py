@@ -4,7 +4,7 @@
                [--opt name=value ...] [--overwrite] [--no-progress] [--x64] [--debug]
                [--restart-every N]
     jaxmpm run --resume DIR [--overwrite] [--no-progress] [--restart-every N]
-    jaxmpm scenes
+    jaxmpm scenes [NAME] [--verbose]
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
     jaxmpm materials [KEY] [--model KIND]
 
@@ -244,12 +244,33 @@ def _run(args) -> int:
 
 
 def cmd_scenes(args) -> int:
+    """`jaxmpm scenes [NAME] [--verbose]`: the built-in scenes; with NAME or --verbose, every builder
+    option with its default and allowed values (jaxmpm.scenes.options, the table the builders check)."""
     from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE
 
+    if args.name is not None and args.name not in BUILTINS:
+        raise ValueError(f"scene {args.name!r} is not a built-in scene: allowed {' | '.join(BUILTINS)}")
+    names = [args.name] if args.name is not None else list(BUILTINS)
     width = max(map(len, BUILTINS))
-    for name, b in BUILTINS.items():
+    for name in names:
+        b = BUILTINS[name]
         print(f"{name:<{width}}  {b.summary}{'  [default]' if name == DEFAULT_SCENE else ''}")
+        if args.verbose or args.name is not None:
+            print(format_scene_options(name))
+    if not (args.verbose or args.name is not None):
+        print("\n`jaxmpm scenes NAME` (or --verbose): the options of a scene (--opt name=value) with defaults and ranges")
     return 0
+
+
+def format_scene_options(name: str) -> str:
+    """The builder options of the built-in scene `name`, one a line: name, default, allowed values."""
+    from jaxmpm.scenes.options import describe
+
+    rows = describe(name)
+    w = max(len(k) for k, _, _ in rows)
+    d = max(len(repr(v)) for _, v, _ in rows)
+    lines = [f"    --opt {k:<{w}}  default {v!r:<{d}}  allowed {words}" for k, v, words in rows]
+    return "\n".join(lines)
 
 
 def cmd_materials(args) -> int:
@@ -344,7 +365,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "where DIR holds several); bit-identical to an uninterrupted run")
     run.set_defaults(func=cmd_run)
 
-    scenes = sub.add_parser("scenes", help="list the built-in scenes")
+    scenes = sub.add_parser("scenes", help="list the built-in scenes (with NAME or --verbose: their options)")
+    scenes.add_argument("name", nargs="?", default=None, help="a built-in scene: list its options with defaults and ranges")
+    scenes.add_argument("--verbose", "-v", action="store_true", help="every scene's options with defaults and ranges")
     scenes.set_defaults(func=cmd_scenes)
 
     materials = sub.add_parser("materials", help="list the material library, or one key's constants and sources",

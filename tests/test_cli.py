@@ -93,7 +93,7 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     (["debris_cloud", "--opt", "gap=abc"], ["gap = 'abc' is invalid", "allowed a finite number >= 0"]),   # default None: untyped
     (["debris_cloud", "--opt", "gap=inf"], ["gap = inf is invalid", "allowed a finite number >= 0"]),
     (["debris_cloud", "--opt", "gap=true"], ["gap = True is invalid", "allowed a finite number >= 0"]),
-    (["debris_cloud", "--opt", "gap=-0.001"], ["gap = -0.001 m puts the sphere into the plate"]),
+    (["debris_cloud", "--opt", "gap=-0.001"], ["gap = -0.001 is invalid", "allowed a finite number >= 0 m (from the sphere to the plate's top face)"]),
     (["--t-end", "inf"], ["--t-end inf is invalid: allowed a finite time > 0 s"]),
     (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
     (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
