@@ -2,7 +2,7 @@
 
     jaxmpm run [SCENE|file.toml] [--out DIR] [--t-end S] [--n-out N] [--set key=value ...]
                [--opt name=value ...] [--overwrite] [--no-progress] [--x64] [--debug]
-               [--restart-every N]
+               [--restart-every N] [--yes] [--max-minutes M] [--plot-field NAME]
     jaxmpm run --resume DIR [--overwrite] [--no-progress] [--restart-every N]
     jaxmpm scenes [NAME] [--verbose]
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
@@ -113,6 +113,8 @@ def _check_run_args(args) -> None:
         raise ValueError(f"--t-end {args.t_end} is invalid: allowed a finite time > 0 s")
     if args.n_out is not None and args.n_out < 1:
         raise ValueError(f"--n-out {args.n_out} is invalid: allowed an integer >= 1")
+    if args.max_minutes is not None and not (args.max_minutes > 0):
+        raise ValueError(f"--max-minutes {args.max_minutes} is invalid: allowed a number of minutes > 0")
 
 
 def _new_folders(out: Path) -> list[Path]:
@@ -198,6 +200,7 @@ def _run(args) -> int:
         t_end = scene.t_end if args.t_end is None else args.t_end
         n_out = scene.n_out if args.n_out is None else args.n_out
         params = jaxmpm.default_params(scene)
+        _check_size(scene, n_out, args.x64)
         state = initial_state(scene, params)
         phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
         print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
@@ -212,7 +215,8 @@ def _run(args) -> int:
                                              progress=not args.no_progress,
                                              restart_file=str(rfile) if args.restart_every else None,
                                              restart_every=args.restart_every or 1, debug=args.debug,
-                                             overwrite=args.overwrite)
+                                             overwrite=args.overwrite, yes=args.yes, max_minutes=args.max_minutes,
+                                             announce=lambda line: print(line, flush=True))
         except KeyboardInterrupt:
             saved = (f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
                      if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
@@ -241,6 +245,15 @@ def _run(args) -> int:
     for p in (h5, xdmf, png) + ((rfile,) if args.restart_every and not args.resume else ()):
         print(f"  {p}")
     return 0
+
+
+def _check_size(scene, n_out: int, x64: bool) -> None:
+    """Before the particles' state is made: refuse a run whose history and grid cannot fit in memory
+    (jaxmpm.planning.check_run_memory; the particles are counted from the scene's sampling)."""
+    from jaxmpm.planning import check_run_memory
+    from jaxmpm.state import phase_slices
+
+    check_run_memory(scene, phase_slices(scene)[-1].stop, n_out, 8 if x64 else 4)
 
 
 def cmd_scenes(args) -> int:
@@ -360,6 +373,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "particle, or the first NaN, naming the step")
     run.add_argument("--restart-every", type=int, default=20, metavar="N",
                      help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
+    run.add_argument("--yes", action="store_true",
+                     help="run even when the estimate after the first chunk passes --max-minutes")
+    run.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                     help="a run estimated (after its first chunk) to take longer stops before saving anything unless "
+                          "--yes (default: $JAXMPM_MAX_MINUTES, else 60)")
     run.add_argument("--resume", metavar="DIR",
                      help="continue the run whose restart file is in DIR, or the one named (DIR/NAME.restart.h5: "
                           "where DIR holds several); bit-identical to an uninterrupted run")

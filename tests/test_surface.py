@@ -98,3 +98,124 @@ def test_listed_ranges_are_the_ones_the_builders_check():
         assert set(ranges) == set(defaults), name
         for k, r in ranges.items():
             assert r.contains(defaults[k]), (name, k)
+
+
+# --- the run's plan, its estimate and the confirmation (issue: no silent huge or endless run) ----
+
+def _impact(**overrides):
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25, overrides=overrides or None)
+    params = jaxmpm.default_params(scene)
+    return scene, params, jaxmpm.init_state(scene, params)
+
+
+def test_run_past_its_time_threshold_stops_after_the_first_chunk_unless_confirmed(tmp_path):
+    """The plan (particles, nodes, steps, memory) is announced before the run, the time estimate
+    after its first chunk; over max_minutes the run stops (ValueError naming the estimate and
+    yes=True) before it saves anything; yes=True runs it."""
+    scene, params, state = _impact()
+    lines = []
+    restart = tmp_path / "r.restart.h5"
+    with pytest.raises(ValueError, match=r"elastic_impact: the run is estimated to take about .* from its first chunk\), "
+                                         r"over the 1e-09 min allowed without confirmation: run it with --yes \(Python: yes=True\)"):
+        jaxmpm.simulate(scene, params, state, t_end=0.2, n_out=2, progress=False, max_minutes=1e-9,
+                        announce=lines.append, restart_file=str(restart), restart_every=1)
+    assert not restart.exists()
+    plan = lines[0]
+    n = state.x.shape[0]
+    assert re.match(rf"plan: {n:,} particles, 289 nodes x 1 velocity field\(s\), about [\d,]+ steps to t = 0\.2 s .* "
+                    r"memory at least [\d.]+ (KiB|MiB)", plan)
+    steps = int(re.search(r"about ([\d,]+) steps", plan).group(1).replace(",", ""))
+    assert steps == jaxmpm.plan_steps(scene, params, state, 0.2, safety=1.0)
+    assert re.match(r"first chunk: \d+ steps in .* s \(compilation .* s\): the run's [\d,]+ steps take about", lines[1])
+    lines.clear()
+    final, _ = jaxmpm.simulate(scene, params, state, t_end=0.2, n_out=2, progress=False, max_minutes=1e-9, yes=True,
+                               announce=lines.append)
+    assert float(final.t) == pytest.approx(0.2) and lines[1].startswith("first chunk:")
+
+
+def test_time_threshold_from_the_environment(monkeypatch):
+    from jaxmpm.planning import max_minutes
+    monkeypatch.setenv("JAXMPM_MAX_MINUTES", "2.5")
+    assert max_minutes() == 2.5 and max_minutes(7) == 7.0
+    monkeypatch.setenv("JAXMPM_MAX_MINUTES", "soon")
+    with pytest.raises(ValueError, match=r"\$JAXMPM_MAX_MINUTES = 'soon' is invalid: allowed a number of minutes > 0"):
+        max_minutes()
+    monkeypatch.delenv("JAXMPM_MAX_MINUTES")
+    assert max_minutes() == 60.0
+
+
+def test_endless_run_on_the_command_line_is_refused_with_its_plan_and_estimate(tmp_path, capsys):
+    """t_end = 1e9 s on the vibrating bar (a stable 1D scene) prints its plan (hundreds of
+    billions of steps) and stops after the first chunk at the default threshold; nothing is left."""
+    out = tmp_path / "o"
+    code = cli.main(["run", "vibrating_bar", "--opt", "cells=20", "--t-end", "1e9", "--out", str(out), "--no-progress"])
+    captured = capsys.readouterr()
+    assert code == 2, captured.err
+    assert re.search(r"plan: [\d,]+ particles, 25 nodes x 1 velocity field\(s\), about [\d,]{12,} steps to t = 1e\+09 s",
+                     captured.out)
+    assert "first chunk:" in captured.out
+    assert re.search(r"error: vibrating_bar: the run is estimated to take about [\d.]+ (h|days) .* over the 60 min "
+                     r"allowed without confirmation: run it with --yes", captured.err)
+    assert not out.exists()
+
+
+def test_history_beyond_the_memory_is_refused_before_the_state_is_made(tmp_path, capsys, monkeypatch):
+    import jaxmpm.planning
+    monkeypatch.setattr(jaxmpm.planning, "available_memory", lambda: 2**20)
+    code = cli.main(["run", "--opt", "resolution=0.25", "--n-out", "100000", "--out", str(tmp_path / "o"), "--no-progress"])
+    assert code == 2
+    assert re.search(r"error: n_out = 100000 with \d+ particles and grid\.cells = \[16, 16\] is invalid here: the run keeps "
+                     r"100001 states of .* more than the 1 MiB of memory available", capsys.readouterr().err)
+    scene, params, state = _impact()
+    with pytest.raises(ValueError, match=r"n_out = 100000 with .* more than the 1 MiB of memory available"):
+        jaxmpm.simulate(scene, params, state, n_out=100_000, progress=False)
+
+
+def test_max_minutes_must_be_positive(tmp_path, capsys):
+    assert cli.main(["run", "--max-minutes", "0", "--out", str(tmp_path / "o")]) == 2
+    assert "--max-minutes 0.0 is invalid: allowed a number of minutes > 0" in capsys.readouterr().err
+
+
+# --- magnitudes checked against the scene's scales before a run ---------------------------------
+
+def test_gravity_that_moves_a_particle_more_than_a_cell_per_step_is_refused_before_running():
+    """|g| dt^2 > h at the initial CFL step: refused naming gravity and the allowed bound h / dt^2;
+    a gravity just inside the bound is accepted (the bound is the one computed, not a guess)."""
+    scene, params, state = _impact(**{"effects.gravity": [0.0, -1e30]})
+    with pytest.raises(ValueError, match=r"gravity = \[0\.0, -1e\+30\] m/s\^2 is too large for the grid and time step: "
+                                         r"in one step of dt = .* s it moves a particle at rest .* m, more than a cell "
+                                         r"\(h = 0\.0625 m\): allowed \|gravity\| <= h / dt\^2 = .* m/s\^2"):
+        jaxmpm.simulate(scene, params, state, progress=False)
+    dt = jaxmpm.planning.host_cfl_step(scene, params, state)
+    bound = scene.grid.h / dt**2
+    from jaxmpm.planning import acceleration_bound
+    ok = params.__class__(**{**params.__dict__, "gravity": params.gravity * 0 + jax_array([0.0, -0.99 * bound])})
+    acceleration_bound(scene, ok, state)
+    over = params.__class__(**{**params.__dict__, "gravity": params.gravity * 0 + jax_array([0.0, -1.01 * bound])})
+    with pytest.raises(ValueError, match=r"gravity = .* is too large"):
+        acceleration_bound(scene, over, state)
+
+
+def jax_array(values):
+    import jax.numpy as jnp
+    return jnp.asarray(values)
+
+
+def test_speed_out_of_scale_is_warned_before_and_explained_alike_with_and_without_debug():
+    """1e5 m/s on the 1 m grid: a warning before the run names the phase and when it would leave
+    the grid; the failure then gets one explanation (the first step where a particle fails, with
+    its phase and position) whether the run checks every step (debug) or not."""
+    scene, params, state = _impact(**{"phase.disk_a.velocity": [1e5, 1e5]})
+    messages = []
+    for debug in (False, True):
+        with pytest.warns(UserWarning, match=r"elastic_impact: phase 'disk_a' moves at up to 1\.41e\+05 m/s: unstopped, it "
+                                             r"would leave the grid through a face without a wall at t = .* before t_end = 3 s"):
+            with pytest.raises(FloatingPointError) as info:
+                jaxmpm.simulate(scene, params, state, progress=False, debug=debug, yes=True)
+        messages.append(str(info.value))
+    plain, checked = (m.split("; checkify:")[0] for m in messages)
+    assert plain == checked
+    assert re.match(r"elastic_impact: particle \d+ of phase 'disk_\w' is outside the grid at t = .* \(step \d+ of chunk 1", plain)
+    assert "checkify: step" in messages[1]
