@@ -8,7 +8,8 @@
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
     jaxmpm materials [KEY] [--model KIND]
 
-`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state), and
+`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (a field at several
+times and energy against time: `--plot-field`), and
 <name>.restart.h5 every N chunks (`--restart-every`, 20 by default, 0: never), from which
 `--resume DIR` finishes an interrupted run; it refuses, before simulating, to overwrite any of
 them without --overwrite. Bad input (an unknown
@@ -231,7 +232,8 @@ def _run(args) -> int:
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
     io.write(h5, scene, history, params=params, overwrite=args.overwrite)
-    io.plot_state(scene, final, png, overwrite=args.overwrite)
+    from jaxmpm.plot import plot_run
+    plot_run(scene, history, png, field=args.plot_field, params=params, overwrite=args.overwrite)
     print(f"done in {wall:.3g} s wall time (compilation included)")
     w = 26
     print(f"  {'':<{w}}{'start':>14}{'end':>14}")
@@ -373,6 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "particle, or the first NaN, naming the step")
     run.add_argument("--restart-every", type=int, default=20, metavar="N",
                      help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
+    run.add_argument("--plot-field", choices=("speed", "pressure", "damage", "phase"), default="speed",
+                     help="the field the PNG shows at several times, with a colorbar, above energy against time "
+                          "(default: speed)")
     run.add_argument("--yes", action="store_true",
                      help="run even when the estimate after the first chunk passes --max-minutes")
     run.add_argument("--max-minutes", type=float, default=None, metavar="M",

@@ -219,3 +219,72 @@ def test_speed_out_of_scale_is_warned_before_and_explained_alike_with_and_withou
     assert plain == checked
     assert re.match(r"elastic_impact: particle \d+ of phase 'disk_\w' is outside the grid at t = .* \(step \d+ of chunk 1", plain)
     assert "checkify: step" in messages[1]
+
+
+# --- the run's PNG ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def brittle_run():
+    """The brittle rod (axisymmetric; 80 mm long: a grid 4 times as tall as wide) at its coarsest,
+    3 outputs over 10 us."""
+    scene = jaxmpm.load_scene("taylor_brittle", resolution=0.3, length=0.08)
+    params = jaxmpm.default_params(scene)
+    final, history = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), t_end=1e-5, n_out=3, progress=False)
+    return scene, params, history
+
+
+@pytest.mark.parametrize("field", ["speed", "pressure", "damage", "phase"])
+def test_run_figure_has_snapshots_a_colorbar_and_an_energy_panel(brittle_run, field):
+    """4 snapshot panels (all 4 outputs), a colorbar (a legend outside the panels for phases) and
+    the energy panel, with kinetic, internal and total energy at every output; the narrow
+    panels of the tall axisymmetric grid fill most of the figure's width."""
+    from jaxmpm.plot import run_figure
+
+    scene, params, history = brittle_run
+    fig = run_figure(scene, history, field, panels=4, params=params)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig).draw()
+    axes = fig.get_axes()
+    snaps = [a for a in axes if a.get_title().startswith("t = ")]
+    bars = [a for a in axes if a.get_label() == "<colorbar>"]
+    energy = [a for a in axes if a.get_ylabel().startswith("energy")]
+    assert len(snaps) == 4 and len(energy) == 1
+    assert len(bars) == (0 if field == "phase" else 1)
+    assert [len(line.get_xdata()) for line in energy[0].get_lines()] == [4, 4, 4]
+    assert {t.get_text() for t in energy[0].get_legend().get_texts()} == {"kinetic", "internal", "total"}
+    renderer = fig.canvas.get_renderer()
+    width = fig.bbox.width
+    used = sum(a.get_window_extent(renderer).width for a in snaps + bars)
+    assert used > 0.5 * width, (used, width)
+    legends = [leg for sub in (fig, *fig.subfigs) for leg in sub.legends]
+    assert len(legends) == (1 if field == "phase" else 0)
+    for leg in legends + [energy[0].get_legend()]:
+        box = leg.get_window_extent(renderer)
+        for a in snaps + energy:
+            assert not box.overlaps(a.get_window_extent(renderer)), "a legend covers data"
+
+
+def test_run_png_is_written_with_the_chosen_field(tmp_path, capsys):
+    out = tmp_path / "o"
+    argv = ["run", "--opt", "resolution=0.25", "--t-end", "0.2", "--n-out", "2", "--out", str(out), "--no-progress",
+            "--restart-every", "0", "--plot-field", "pressure"]
+    assert cli.main(argv) == 0
+    png = out / "elastic_impact.png"
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(argv[:-2] + ["--plot-field", "heat"])
+    assert exit_.value.code == 2
+    assert "--plot-field: invalid choice: 'heat'" in capsys.readouterr().err
+
+
+def test_state_plot_of_a_tall_grid_is_not_wider_than_its_panels_need(brittle_run, tmp_path):
+    """plot_state's two panels (phases, damage) of the tall axisymmetric grid: the figure is no
+    wider than the panels' aspect asks (it was 13 x 9 in for two panels of 2.2 x 9 in)."""
+    from PIL import Image
+
+    from jaxmpm.plot import plot_state
+    scene, params, history = brittle_run
+    last = jaxmpm.plot.jax_tree_index(history, -1)
+    png = plot_state(scene, last, tmp_path / "s.png")
+    w, h = Image.open(png).size
+    assert w < h
