@@ -276,9 +276,11 @@ def first_failure(scene, params, state, stop, dt, length, mesh=None):
     return None
 
 
-def _failure_text(found, n_chunk, length) -> str:
+def _failure_text(found, n_chunk, length, end_message=None) -> str:
+    """The account of a failed chunk: `first_failure`'s step and message, else (a replay that does
+    not fail, e.g. a NaN that checkify saw in an intermediate only) the message at the chunk's end."""
     if found is None:
-        return f"a non-finite value in chunk {n_chunk} of {length} steps"
+        return f"{end_message or 'a non-finite value'} (in chunk {n_chunk} of {length} steps)"
     return f"{found[1]} (step {found[0]} of chunk {n_chunk}, chunks of {length} steps)"
 
 
@@ -461,7 +463,12 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                 healthy, dt_cfl = health(params, state)
                 if not bool(healthy):
                     found = first_failure(scene, params, before, stop, dt, chunk, mesh)
-                    raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks, chunk)}")
+                    here = state
+                    if found is None and mesh is not None:
+                        from jaxmpm.distributed import from_shards, mesh_size
+                        here = from_shards(scene, state, mesh_size(mesh))
+                    end = None if found is not None else find_nonfinite(scene, here)
+                    raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks, chunk, end)}")
                 if plan is not None and n_chunks == 1:
                     compiled = compile_seconds() - c0
                     plan.first_chunk(chunk, time.perf_counter() - w0 - compiled, compiled)

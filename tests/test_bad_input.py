@@ -229,6 +229,16 @@ CASES = [
     ("builder option below its range", lambda: jaxmpm.load_scene("mpm88", n_grid=3), r"mpm88: n_grid = 3 is invalid: allowed an integer >= 27 \(at dim = 2, ppc_scale = 1"),
     ("builder options that need too many particles per cell", lambda: jaxmpm.load_scene("mpm88", n_grid=32, ppc_scale=2.0),
      r"mpm88: n_grid = 32 is invalid: allowed an integer >= 38 \(at dim = 2, ppc_scale = 2: at most 8 particles per cell per axis"),
+    ("built-in scene's resolution below its floor", lambda: jaxmpm.load_scene("elastic_impact", resolution=0.01),
+     r"elastic_impact: resolution = 0\.01 is invalid: allowed a finite number >= 0\.125 \(8 cells across the unit square\)"),
+    ("built-in scene's option of the wrong kind", lambda: jaxmpm.load_scene("rod_penetration", air="yes"),
+     r"rod_penetration: air = 'yes' is invalid: allowed true \| false"),
+    ("gravity moving a particle more than a cell per step", lambda: (lambda s: jaxmpm.simulate(
+        s, jaxmpm.default_params(s), jaxmpm.init_state(s, jaxmpm.default_params(s)), progress=False))(
+        jaxmpm.load_scene("elastic_impact", resolution=0.25, overrides={"effects.gravity": [0.0, -1e30]})),
+     r"gravity = \[0\.0, -1e\+30\] m/s\^2 is too large for the grid and time step: .* allowed \|gravity\| <= h / dt\^2 = "),
+    ("confirmation threshold of zero minutes", lambda: simulate_with(max_minutes=0),
+     r"max_minutes = 0 is invalid: allowed a number of minutes > 0"),
     ("builder cell count as a fraction", lambda: jaxmpm.load_scene("vibrating_bar", cells=2.5),
      r"vibrating_bar: cells = 2\.5 is invalid: allowed an integer >= 2"),
     ("a folder as a scene file", lambda: jaxmpm.load_scene("/"),

@@ -355,3 +355,18 @@ def test_physics_doc_names_every_equation_label_and_functions_that_exist():
             assert hasattr(importlib.import_module(f"jaxmpm.{module}"), name), f"{module}:{name}"
     readme = (root / "README.md").read_text()
     assert "docs/physics.md" in readme and "../shared/design/PHYSICS.md" not in readme
+
+
+def test_notebook_extra_brings_ipywidgets_and_the_readme_says_so():
+    """tqdm's notebook progress bars need ipywidgets ("IProgress not found" without it)."""
+    import pathlib
+    try:
+        import tomllib
+    except ImportError:             # Python 3.10
+        import tomli as tomllib
+
+    root = pathlib.Path(__file__).parents[1]
+    extras = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    names = {re.split(r"[<>=~!; ]", req)[0] for req in extras["notebook"]}
+    assert {"ipywidgets", "ipykernel"} <= names and names & {"notebook", "jupyterlab"}
+    assert '".[notebook]"' in (root / "README.md").read_text()
