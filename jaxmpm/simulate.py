@@ -414,6 +414,11 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
                         restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh, plan=plan)
 
 
+# A chunk (default length) does at most this many particle-steps (and at least 10 steps): its first
+# one, after which a run's time is estimated (`RunPlan.first_chunk`), takes seconds, not hours.
+CHUNK_PARTICLE_STEPS = 20_000_000
+
+
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
                  start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, plan=None):
     """The adaptive host-driven run (see the module docstring). plan: a `RunPlan` told the first
@@ -422,7 +427,7 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
-        chunk = int(min(max(est, 1), 1000))
+        chunk = int(min(max(est, 1), 1000, max(10, CHUNK_PARTICLE_STEPS // max(int(np.shape(state.x)[0]), 1))))
     run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
         checked = _checked_chunk_fn(scene, int(chunk))
