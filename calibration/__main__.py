@@ -246,6 +246,7 @@ def cmd_synthetic(args) -> int:
     from calibration.synthetic import DebrisInWaterModel
     truth, start = _pair(args.truth, "--truth"), _pair(args.start, "--start")
     _iterations(args.iterations)
+    out = _new_folder(args.out)
     model = DebrisInWaterModel.build()
     print(f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
           f"truth C_d = {truth[0]:g}, C_h = {truth[1]:g}; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
@@ -255,6 +256,16 @@ def cmd_synthetic(args) -> int:
     err = res.values / np.asarray(truth) - 1
     print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} evaluations, {res.seconds:.1f} s)")
     print(f"recovered C_d = {res.values[0]:.6g} ({100 * err[0]:+.2g}%), C_h = {res.values[1]:.6g} ({100 * err[1]:+.2g}%)")
+    result = dict(truth=dict(C_d=truth[0], C_h=truth[1]), start=dict(C_d=start[0], C_h=start[1]),
+                  recovered=dict(C_d=float(res.values[0]), C_h=float(res.values[1])),
+                  relative_error=dict(C_d=float(err[0]), C_h=float(err[1])), loss=res.loss, stopped=res.stopped,
+                  history=res.history, observables=np.asarray(target).tolist(),
+                  settings=dict(scene=model.scene.name, particles=int(model.state.x.shape[0]), n_steps=model.n_steps,
+                                t_end=model.scene.t_end, iterations=args.iterations, method=args.method,
+                                evaluations=res.evaluations, wall_seconds=res.seconds, argv=sys.argv),
+                  versions=_versions())
+    (out / "result.json").write_text(json.dumps(result, indent=1))
+    print(f"wrote:\n  {out / 'result.json'}")
     return 0
 
 
@@ -302,6 +313,8 @@ def build_parser():
     y.add_argument("--start", default="2.0,0.3", help="starting C_d,C_h")
     y.add_argument("--iterations", type=int, default=20, help="optimiser iterations")
     y.add_argument("--method", choices=("adam", "lbfgs"), default="lbfgs", help="optimiser")
+    y.add_argument("--out", default="calibration_synthetic", help="output folder for result.json (must not hold a "
+                   "previous result)")
     y.add_argument("--no-progress", action="store_true", help="no progress bars")
     return ap
 

@@ -2,13 +2,14 @@
 
     jaxmpm run [SCENE|file.toml] [--out DIR] [--t-end S] [--n-out N] [--set key=value ...]
                [--opt name=value ...] [--overwrite] [--no-progress] [--x64] [--debug]
-               [--restart-every N]
+               [--restart-every N] [--yes] [--max-minutes M] [--plot-field NAME]
     jaxmpm run --resume DIR [--overwrite] [--no-progress] [--restart-every N]
-    jaxmpm scenes
+    jaxmpm scenes [NAME] [--verbose]
     jaxmpm show FILE.h5 [--png OUT.png] [--overwrite]
     jaxmpm materials [KEY] [--model KIND]
 
-`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (final state), and
+`run` writes <out>/<scene name>.h5 (HDF5), .xdmf (open in ParaView) and .png (a field at several
+times and energy against time: `--plot-field`), and
 <name>.restart.h5 every N chunks (`--restart-every`, 20 by default, 0: never), from which
 `--resume DIR` finishes an interrupted run; it refuses, before simulating, to overwrite any of
 them without --overwrite. Bad input (an unknown
@@ -113,6 +114,8 @@ def _check_run_args(args) -> None:
         raise ValueError(f"--t-end {args.t_end} is invalid: allowed a finite time > 0 s")
     if args.n_out is not None and args.n_out < 1:
         raise ValueError(f"--n-out {args.n_out} is invalid: allowed an integer >= 1")
+    if args.max_minutes is not None and not (args.max_minutes > 0):
+        raise ValueError(f"--max-minutes {args.max_minutes} is invalid: allowed a number of minutes > 0")
 
 
 def _new_folders(out: Path) -> list[Path]:
@@ -198,6 +201,7 @@ def _run(args) -> int:
         t_end = scene.t_end if args.t_end is None else args.t_end
         n_out = scene.n_out if args.n_out is None else args.n_out
         params = jaxmpm.default_params(scene)
+        _check_size(scene, n_out, args.x64)
         state = initial_state(scene, params)
         phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
         print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
@@ -212,7 +216,8 @@ def _run(args) -> int:
                                              progress=not args.no_progress,
                                              restart_file=str(rfile) if args.restart_every else None,
                                              restart_every=args.restart_every or 1, debug=args.debug,
-                                             overwrite=args.overwrite)
+                                             overwrite=args.overwrite, yes=args.yes, max_minutes=args.max_minutes,
+                                             announce=lambda line: print(line, flush=True))
         except KeyboardInterrupt:
             saved = (f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
                      if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
@@ -227,7 +232,8 @@ def _run(args) -> int:
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
     io.write(h5, scene, history, params=params, overwrite=args.overwrite)
-    io.plot_state(scene, final, png, overwrite=args.overwrite)
+    from jaxmpm.plot import plot_run
+    plot_run(scene, history, png, field=args.plot_field, params=params, overwrite=args.overwrite)
     print(f"done in {wall:.3g} s wall time (compilation included)")
     w = 26
     print(f"  {'':<{w}}{'start':>14}{'end':>14}")
@@ -243,13 +249,43 @@ def _run(args) -> int:
     return 0
 
 
+def _check_size(scene, n_out: int, x64: bool) -> None:
+    """Before the particles' state is made: refuse a run whose history and grid cannot fit in memory
+    (jaxmpm.planning.check_run_memory; the particles are counted from the scene's sampling)."""
+    from jaxmpm.planning import check_run_memory
+    from jaxmpm.state import phase_slices
+
+    check_run_memory(scene, phase_slices(scene)[-1].stop, n_out, 8 if x64 else 4)
+
+
 def cmd_scenes(args) -> int:
+    """`jaxmpm scenes [NAME] [--verbose]`: the built-in scenes; with NAME or --verbose, every builder
+    option with its default and allowed values (jaxmpm.scenes.options, the table the builders check)."""
     from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE
 
+    if args.name is not None and args.name not in BUILTINS:
+        raise ValueError(f"scene {args.name!r} is not a built-in scene: allowed {' | '.join(BUILTINS)}")
+    names = [args.name] if args.name is not None else list(BUILTINS)
     width = max(map(len, BUILTINS))
-    for name, b in BUILTINS.items():
+    for name in names:
+        b = BUILTINS[name]
         print(f"{name:<{width}}  {b.summary}{'  [default]' if name == DEFAULT_SCENE else ''}")
+        if args.verbose or args.name is not None:
+            print(format_scene_options(name))
+    if not (args.verbose or args.name is not None):
+        print("\n`jaxmpm scenes NAME` (or --verbose): the options of a scene (--opt name=value) with defaults and ranges")
     return 0
+
+
+def format_scene_options(name: str) -> str:
+    """The builder options of the built-in scene `name`, one a line: name, default, allowed values."""
+    from jaxmpm.scenes.options import describe
+
+    rows = describe(name)
+    w = max(len(k) for k, _, _ in rows)
+    d = max(len(repr(v)) for _, v, _ in rows)
+    lines = [f"    --opt {k:<{w}}  default {v!r:<{d}}  allowed {words}" for k, v, words in rows]
+    return "\n".join(lines)
 
 
 def cmd_materials(args) -> int:
@@ -339,12 +375,22 @@ def build_parser() -> argparse.ArgumentParser:
                           "particle, or the first NaN, naming the step")
     run.add_argument("--restart-every", type=int, default=20, metavar="N",
                      help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
+    run.add_argument("--plot-field", choices=("speed", "pressure", "damage", "phase"), default="speed",
+                     help="the field the PNG shows at several times, with a colorbar, above energy against time "
+                          "(default: speed)")
+    run.add_argument("--yes", action="store_true",
+                     help="run even when the estimate after the first chunk passes --max-minutes")
+    run.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                     help="a run estimated (after its first chunk) to take longer stops before saving anything unless "
+                          "--yes (default: $JAXMPM_MAX_MINUTES, else 60)")
     run.add_argument("--resume", metavar="DIR",
                      help="continue the run whose restart file is in DIR, or the one named (DIR/NAME.restart.h5: "
                           "where DIR holds several); bit-identical to an uninterrupted run")
     run.set_defaults(func=cmd_run)
 
-    scenes = sub.add_parser("scenes", help="list the built-in scenes")
+    scenes = sub.add_parser("scenes", help="list the built-in scenes (with NAME or --verbose: their options)")
+    scenes.add_argument("name", nargs="?", default=None, help="a built-in scene: list its options with defaults and ranges")
+    scenes.add_argument("--verbose", "-v", action="store_true", help="every scene's options with defaults and ranges")
     scenes.set_defaults(func=cmd_scenes)
 
     materials = sub.add_parser("materials", help="list the material library, or one key's constants and sources",

@@ -153,3 +153,212 @@ def _planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
         raise ValueError(f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
                          "at the initial CFL step)")
     return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
+
+
+def acceleration_bound(scene, params, state, dt=None) -> None:
+    """ValueError before a run whose gravity (plus a phase's body force) moves a particle at rest
+    more than a cell in one step: in a step of dt a constant acceleration a adds a dt to the speed
+    and a dt^2 to the position (PHYSICS 2.1's symplectic update), and the CFL step (the largest,
+    at rest) cannot see the speed the step itself adds; |a| dt0^2 <= h at the initial step dt0
+    (the fixed dt, else the CFL step) keeps it under a cell per step, and the CFL step shrinks
+    as the speed grows, so the bound holds for the whole run where it holds at the start."""
+    accel = []
+    if scene.gravity is not None:
+        accel.append(("gravity", np.asarray(params.gravity, float)))
+    if getattr(scene, "body_force", False):
+        g = np.asarray(params.gravity, float) if scene.gravity is not None else 0.0
+        accel += [(f"gravity + params.body_force['{k}']", g + np.asarray(v, float)) for k, v in params.body_force.items()]
+    if not accel:
+        return
+    step = float(dt) if dt is not None else host_cfl_step(scene, params, state, checked=True)
+    h = scene.grid.h
+    for name, a in accel:
+        size = float(np.linalg.norm(a))
+        if not math.isfinite(size) or size * step**2 > h:
+            raise ValueError(
+                f"{name} = {a.tolist()} m/s^2 is too large for the grid and time step: in one step of "
+                f"dt = {step:.3g} s it moves a particle at rest {size * step**2:.3g} m, more than a cell "
+                f"(h = {h:g} m): allowed |{name}| <= h / dt^2 = {h / step**2:.3g} m/s^2 (or a smaller time step: "
+                "a smaller cfl or a fixed dt)")
+
+
+def _free_faces(scene) -> set:
+    """The grid faces ('x_lo', ...) without a wall (free: a particle through them leaves the grid)."""
+    walls = {face for face, kind in getattr(scene.boundary, "faces", ()) if kind != "free"}
+    return {f"{a}_{s}" for a in "xyz"[:scene.dim] for s in ("lo", "hi")} - walls - ({"x_lo"} if scene.axisymmetric else set())
+
+
+def flight_warnings(scene, state, t_end) -> list[str]:
+    """A line for each phase whose fastest particle, unstopped, would leave the grid through a face
+    without a wall before t_end (s): a speed out of scale with the grid and the run (1e5 m/s on
+    a 1 m grid) fails after some steps; a collision may stop or turn it, so this is a warning."""
+    from jaxmpm.state import phase_slices
+
+    x, v = np.asarray(state.x, float), np.asarray(state.v, float)
+    lo, hi = np.asarray(scene.grid.origin, float), np.asarray(scene.grid.hi, float)
+    free = _free_faces(scene)
+    span = float(t_end) - float(state.t)
+    out = []
+    for phase, sl in zip(scene.phases, phase_slices(scene)):
+        if sl.stop <= sl.start:
+            continue
+        xs, vs = x[sl], v[sl]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_hi = np.where(vs > 0, (hi - xs) / vs, np.inf)
+            t_lo = np.where(vs < 0, (lo - xs) / vs, np.inf)
+        first = np.inf
+        for axis in range(scene.dim):
+            a = "xyz"[axis]
+            if f"{a}_hi" in free:
+                first = min(first, float(np.min(t_hi[:, axis])))
+            if f"{a}_lo" in free:
+                first = min(first, float(np.min(t_lo[:, axis])))
+        if first < span:
+            speed = float(np.max(np.linalg.norm(vs, axis=1)))
+            out.append(f"phase {phase.name!r} moves at up to {speed:.3g} m/s: unstopped, it would leave the grid through a "
+                       f"face without a wall at t = {float(state.t) + first:.3g} s, before t_end = {float(t_end):g} s "
+                       "(a particle outside the grid stops the run: check the speed's units, or enlarge the grid or add walls)")
+    return out
+
+
+# --- the run's plan and its time estimate ------------------------------------------------------
+
+MAX_MINUTES = 60.0            # a run estimated to take longer asks for confirmation (yes=True, --yes)
+MAX_MINUTES_ENV = "JAXMPM_MAX_MINUTES"
+
+
+def max_minutes(value=None) -> float:
+    """The confirmation threshold in minutes: `value`, else $JAXMPM_MAX_MINUTES, else MAX_MINUTES."""
+    import os
+
+    where = "max_minutes"
+    if value is None:
+        text = os.environ.get(MAX_MINUTES_ENV)
+        if text is None:
+            return MAX_MINUTES
+        where = f"${MAX_MINUTES_ENV}"
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"{where} = {text!r} is invalid: allowed a number of minutes > 0") from None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value > 0 or math.isnan(value):
+        raise ValueError(f"{where} = {value!r} is invalid: allowed a number of minutes > 0")
+    return float(value)
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def _duration(s: float) -> str:
+    if s < 120:
+        return f"{s:.3g} s"
+    if s < 7200:
+        return f"{s / 60:.3g} min"
+    if s < 2 * 86400:
+        return f"{s / 3600:.3g} h"
+    return f"{s / 86400:.3g} days"
+
+
+def particle_numbers(scene) -> int:
+    """Numbers a State holds per particle at least: position and velocity (d each), mass, volume,
+    energy, deformation gradient and stress (d^2 each, 3^2 axisymmetric)."""
+    d = scene.dim
+    tensor = 9 if scene.axisymmetric else d * d
+    return 2 * d + 3 + 2 * tensor
+
+
+def run_memory(scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None) -> tuple[int, int, int]:
+    """(total, per state, grid) bytes a host-driven run needs at least: the n_out + 1 states of its
+    history and the one it advances (`particle_numbers` per particle, or `state_bytes` each), and
+    the grid at NUMBERS_PER_NODE numbers per node and velocity field."""
+    per_state = particles * particle_numbers(scene) * itemsize if state_bytes is None else int(state_bytes)
+    grid = math.prod(c + 1 for c in scene.grid.cells) * scene.n_fields * NUMBERS_PER_NODE * itemsize
+    return (int(n_out) + 2) * per_state + grid, per_state, grid
+
+
+def check_run_memory(scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None) -> None:
+    """ValueError before a run (before its state is made, where `state_bytes` is None) whose history
+    and grid (`run_memory`) need more memory than is available."""
+    avail = available_memory()
+    total, per_state, grid = run_memory(scene, particles, n_out, itemsize, state_bytes)
+    if avail is not None and total > avail:
+        raise ValueError(f"n_out = {n_out} with {particles:,} particles and grid.cells = {list(scene.grid.cells)} is "
+                         f"invalid here: the run keeps {int(n_out) + 1} states of {_size(per_state)} and a grid of at least "
+                         f"{_size(grid)}, {_size(total)} in all, more than the {_size(avail)} of memory available (allowed "
+                         "fewer outputs, or fewer particles: a larger h with --opt resolution / grid.h)")
+
+
+class RunPlan:
+    """What a host-driven run will do, known before it starts: particles, nodes, planned steps (at
+    the initial CFL step, or the fixed dt), and the memory it needs at least (the history of
+    n_out + 1 states it keeps, and the grid at NUMBERS_PER_NODE numbers per node and field); and
+    after its first chunk, the time it will take (`first_chunk`), against a threshold in minutes
+    above which it runs only when confirmed (yes)."""
+
+    def __init__(self, scene, params, state, t_end, n_out, dt=None, minutes=None, yes=False, report=None):
+        self.scene, self.t_end, self.n_out, self.yes, self.report = scene, float(t_end), int(n_out), bool(yes), report
+        self.minutes = max_minutes(minutes)
+        self.particles = int(np.shape(state.x)[0])
+        self.nodes = math.prod(c + 1 for c in scene.grid.cells)
+        self.itemsize = np.dtype(state.x.dtype).itemsize
+        self.state_bytes = sum(int(np.prod(np.shape(a))) * np.dtype(a.dtype).itemsize for a in _leaves(state))
+        self.memory = run_memory(scene, self.particles, self.n_out, self.itemsize, self.state_bytes)[0]
+        compile_seconds()                       # listening for compilations from here on
+        self.steps = _planned_steps(scene, params, state, t_end, dt, safety=1.0)
+        self.seconds = None
+
+    def check_memory(self) -> None:
+        """ValueError where the memory the run needs at least exceeds the memory available."""
+        check_run_memory(self.scene, self.particles, self.n_out, self.itemsize, self.state_bytes)
+
+    def text(self) -> str:
+        s = self.scene
+        return (f"plan: {self.particles:,} particles, {self.nodes:,} nodes x {s.n_fields} velocity field(s), about "
+                f"{self.steps:,} steps to t = {self.t_end:g} s (at the initial CFL step), memory at least "
+                f"{_size(self.memory)}; time estimated after the first chunk (runs over {self.minutes:g} min "
+                "need --yes)")
+
+    def first_chunk(self, steps: int, seconds: float, compile_seconds: float) -> None:
+        """The time of the whole run from its first chunk of `steps` steps, which took `seconds`
+        (compilation excluded); reported, and a ValueError where it exceeds the threshold unconfirmed."""
+        per_step = max(seconds, 0.0) / max(int(steps), 1)
+        self.seconds = per_step * self.steps
+        line = (f"first chunk: {steps} steps in {seconds:.3g} s (compilation {compile_seconds:.3g} s): the run's "
+                f"{self.steps:,} steps take about {_duration(self.seconds)}")
+        if self.report is not None:
+            self.report(line)
+        if self.seconds > 60 * self.minutes and not self.yes:
+            raise ValueError(f"{self.scene.name}: the run is estimated to take about {_duration(self.seconds)} "
+                             f"({self.steps:,} steps to t_end = {self.t_end:g} s at {per_step:.3g} s per step, from its "
+                             f"first chunk), over the {self.minutes:g} min allowed without confirmation: run it with "
+                             f"--yes (Python: yes=True), or raise --max-minutes (max_minutes=, ${MAX_MINUTES_ENV}), or "
+                             "make it smaller (a shorter t_end, a coarser resolution)")
+
+
+def _leaves(state):
+    import jax
+    return [a for a in jax.tree.leaves(state) if a is not None]
+
+
+_COMPILE = {"seconds": 0.0, "listening": False}
+_COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                   "/jax/core/compile/backend_compile_duration")
+
+
+def compile_seconds() -> float:
+    """Seconds this process has spent tracing and compiling JAX functions since the first call
+    (jax.monitoring's compile events): a chunk's wall time less the increase is its run time."""
+    if not _COMPILE["listening"]:
+        import jax
+
+        def listen(event, duration, **_):
+            if event in _COMPILE_EVENTS:
+                _COMPILE["seconds"] += float(duration)
+
+        jax.monitoring.register_event_duration_secs_listener(listen)
+        _COMPILE["listening"] = True
+    return _COMPILE["seconds"]

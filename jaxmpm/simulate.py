@@ -16,6 +16,7 @@ import contextlib
 import functools
 import math
 import os
+import time
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +27,7 @@ from jaxmpm.params import check_params
 # the run's arguments and step plan (jaxmpm.planning), importable from here as before
 from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
                              count as count, plan_steps as plan_steps, seconds)
+from jaxmpm.planning import RunPlan, acceleration_bound, compile_seconds, flight_warnings
 from jaxmpm.state import check_state, phase_slices
 from jaxmpm.tangents import evolving_tangents
 from jaxmpm.step import cfl_time_step, make_step
@@ -257,9 +259,34 @@ def find_nonfinite(scene, state):
     return None
 
 
+def first_failure(scene, params, state, stop, dt, length, mesh=None):
+    """(step, message): the first of `length` steps from `state` toward `stop` after which a
+    particle is non-finite or outside the grid, replayed one step at a time, with
+    `find_nonfinite`'s message for the state after it; None where no step of them fails. The same
+    account of a failure whether the chunk ran with checks (debug) or without."""
+    one, health = _chunk_fn(scene, 1, mesh), _health_fn(scene)
+    for i in range(int(length)):
+        state = one(params, state, stop, dt)
+        if not bool(health(params, state)[0]):
+            here = state
+            if mesh is not None:
+                from jaxmpm.distributed import from_shards, mesh_size
+                here = from_shards(scene, state, mesh_size(mesh))
+            return i + 1, find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
+    return None
+
+
+def _failure_text(found, n_chunk, length, end_message=None) -> str:
+    """The account of a failed chunk: `first_failure`'s step and message, else (a replay that does
+    not fail, e.g. a NaN that checkify saw in an intermediate only) the message at the chunk's end."""
+    if found is None:
+        return f"{end_message or 'a non-finite value'} (in chunk {n_chunk} of {length} steps)"
+    return f"{found[1]} (step {found[0]} of chunk {n_chunk}, chunks of {length} steps)"
+
+
 def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
              progress=True, checkpoint="auto", chunk=None, restart_file=None, restart_every=10, debug=False,
-             mesh=None, overwrite=False, allow_short=False, _report=None):
+             mesh=None, overwrite=False, allow_short=False, yes=False, max_minutes=None, announce=None, _report=None):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -293,6 +320,11 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     mesh: a `jaxmpm.distributed.particle_mesh`: the particles split across its devices, the
       nodal sums completed across them (`jaxmpm.distributed`); the state passed and the results
       are in the scene's particle order. Not with restart_file or debug.
+    yes, max_minutes, announce (host driver): before the run its plan is made (particles, nodes,
+      planned steps, the memory it needs: more than is available is refused) and after its first
+      chunk its time is estimated (`jaxmpm.planning.RunPlan`); a run estimated over max_minutes
+      (None: $JAXMPM_MAX_MINUTES, else 60) raises a ValueError before it saves anything, unless
+      yes=True. announce: a callable given the plan's and the estimate's lines (`jaxmpm run`: print).
     """
     t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
@@ -307,6 +339,17 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         t_end = check_t_end(t_end, state.t)
         if dt is not None:
             check_dt(scene, params, state, seconds("dt", dt))
+        acceleration_bound(scene, params, state, None if dt is None else seconds("dt", dt))
+    plan = None
+    if not traced and n_steps is None:
+        import warnings
+        for line in flight_warnings(scene, state, t_end):
+            warnings.warn(f"{scene.name}: {line}", UserWarning, stacklevel=2)
+        plan = RunPlan(scene, params, state, t_end, n_out, None if dt is None else seconds("dt", dt), max_minutes, yes,
+                       announce)
+        plan.check_memory()
+        if announce is not None:
+            announce(plan.text())
     if (traced or n_steps is not None) and debug:
         raise ValueError("debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
                          "nothing): allowed debug=False there, or no n_steps outside them")
@@ -327,7 +370,7 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
         state = distributed.to_shards(scene, state, mesh)
     t0 = None if traced else float(state.t)
     final, history = _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk,
-                          restart_file, restart_every, debug, traced, mesh, _report)
+                          restart_file, restart_every, debug, traced, mesh, _report, plan)
     if n_steps is not None and not traced and not allow_short:
         _check_reached(scene, final.t, t0, t_end, n_steps)
     if mesh is None:
@@ -346,7 +389,7 @@ def _check_reached(scene, t, t0, t_end, n_steps):
 
 
 def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk, restart_file, restart_every,
-         debug, traced, mesh, report=None):
+         debug, traced, mesh, report=None, plan=None):
     """report: whether the fixed-length driver tells a progress bar its steps (None: where progress
     is on outside jit/grad/vmap; `ensemble` sets it for its vmapped members and draws the bar)."""
     dtype = state.t.dtype
@@ -368,16 +411,23 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
         raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
     return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk,
-                        restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh)
+                        restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh, plan=plan)
+
+
+# A chunk (default length) does at most this many particle-steps (and at least 10 steps): its first
+# one, after which a run's time is estimated (`RunPlan.first_chunk`), takes seconds, not hours.
+CHUNK_PARTICLE_STEPS = 20_000_000
 
 
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None):
+                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, plan=None):
+    """The adaptive host-driven run (see the module docstring). plan: a `RunPlan` told the first
+    chunk's run time (compilation excluded), which may refuse the run before anything is saved."""
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
-        chunk = int(min(max(est, 1), 1000))
+        chunk = int(min(max(est, 1), 1000, max(10, CHUNK_PARTICLE_STEPS // max(int(np.shape(state.x)[0]), 1))))
     run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
         checked = _checked_chunk_fn(scene, int(chunk))
@@ -385,8 +435,9 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
         def run(params, state, stop, dt):
             err, new = checked(params, state, stop, dt)
             if err.get() is not None:
-                raise FloatingPointError(f"{scene.name}: checkify: {err.get()} (in chunk {n_chunks + 1} of {chunk} steps, "
-                                         f"started at t = {float(state.t):.6g} s)")
+                found = first_failure(scene, params, state, stop, dt, chunk, mesh)
+                raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks + 1, chunk)}"
+                                         f"; checkify: {err.get()}")
             return new
     health = _health_fn(scene)
     bar = None
@@ -411,17 +462,21 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
             stop = jnp.asarray(t_stop, state.t.dtype)
             while float(state.t) < t_stop - tol:
                 t_before = float(state.t)
+                before, c0, w0 = state, compile_seconds(), time.perf_counter()
                 state = run(params, state, stop, dt)
                 n_chunks += 1
                 healthy, dt_cfl = health(params, state)
                 if not bool(healthy):
+                    found = first_failure(scene, params, before, stop, dt, chunk, mesh)
                     here = state
-                    if mesh is not None:
+                    if found is None and mesh is not None:
                         from jaxmpm.distributed import from_shards, mesh_size
                         here = from_shards(scene, state, mesh_size(mesh))
-                    msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
-                    raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
-                                             "debug=True, or jaxmpm run --debug, names the step where it happened)")
+                    end = None if found is not None else find_nonfinite(scene, here)
+                    raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks, chunk, end)}")
+                if plan is not None and n_chunks == 1:
+                    compiled = compile_seconds() - c0
+                    plan.first_chunk(chunk, time.perf_counter() - w0 - compiled, compiled)
                 if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
                     raise FloatingPointError(
                         f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "

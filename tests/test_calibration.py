@@ -278,7 +278,7 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     (["table", "--c-h", ""], r"--c-h '' is invalid: allowed comma-separated numbers"),
     (["table", "--c-h", "0.1,inf"], r"--c-h '0.1,inf' is invalid: allowed C_h values > 0"),
     (["fit", "--start", "inf,0.1"], r"--start 'inf,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
-    (["table", "--resolution", "0.5"], r"--resolution 0.5 is invalid: .* allowed >= 4 cells, i.e. resolution >= 0.724"),
+    (["table", "--resolution", "0.5"], r"--resolution 0.5 is invalid: .* allowed a finite number >= 0.724 \(4 cells across the plate\)"),
     (["table", "--resolution", "nan"], r"--resolution nan is invalid: allowed a finite number > 0"),
     (["fit", "--t-end=-1"], r"--t-end -1.0 is invalid: allowed a finite number > 0 \(s\)"),
     (["fit", "--landscape", "1"], r"--landscape 1 is invalid: allowed 0 \(none\) or an integer >= 2"),

@@ -4,13 +4,32 @@ from __future__ import annotations
 import math
 
 from jaxmpm.materials import Material
-from jaxmpm.scene import MAX_PPC, Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.scene import MAX_PPC, SHAPES, Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.scenes import options
+from jaxmpm.scenes.options import FLAG, Range, choice, integer, number  # noqa: F401  (FLAG: the builders' flags)
+
+SHAPE = choice(*SHAPES)
+PPC = Range(f"an integer in [1, {MAX_PPC}]", lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PPC)
+CFL = Range("a number in (0, 1]", lambda v: options._real(v) and 0 < v <= 1)
 
 
 def _cells(n: float, resolution: float, minimum: int = 2) -> int:
-    if not resolution > 0:
-        raise ValueError(f"resolution = {resolution!r} is invalid: allowed > 0")
-    return max(minimum, int(round(n * resolution)))
+    """round(n resolution) cells; a resolution that gives fewer than `minimum` is an error (the
+    builder's resolution floor refuses it first), never silently raised to the minimum."""
+    cells = int(round(n * resolution)) if resolution > 0 else 0
+    if cells < minimum:
+        raise ValueError(f"resolution = {resolution!r} gives {cells} cells: allowed >= {minimum / n:.3g} "
+                         f"({minimum} cells)")
+    return cells
+
+
+IMPACT_CELLS, IMPACT_LEAST_CELLS = 64, 8        # cells across the unit square at resolution 1, at least
+
+
+def elastic_impact_ranges(**_) -> dict:
+    """The allowed values of `elastic_impact`'s options."""
+    floor = options.cells_floor(IMPACT_CELLS, IMPACT_LEAST_CELLS)
+    return {"resolution": options.resolution(floor, IMPACT_LEAST_CELLS, "the unit square"), "shape": SHAPE}
 
 
 def elastic_impact(resolution: float = 1.0, shape: str = "ddmp") -> Scene:
@@ -23,7 +42,8 @@ def elastic_impact(resolution: float = 1.0, shape: str = "ddmp") -> Scene:
     velocity field (no contact algorithm: the shared field makes them stick and rebound elastically).
     Effects: none; walls free. Measures: kinetic/strain energy exchange and total energy, momentum.
     """
-    n = _cells(64, resolution, 8)
+    options.check("elastic_impact", elastic_impact_ranges(), dict(resolution=resolution, shape=shape))
+    n = _cells(IMPACT_CELLS, resolution, IMPACT_LEAST_CELLS)
     mat = Material.make("soft_elastic", "hypoelastic", rho0=1000.0, E=1000.0, nu=0.3)
     return Scene(
         name="elastic_impact", description="two elastic disks collide head-on (2D plane strain)",
@@ -56,10 +76,10 @@ def _fixed_low_end(cells: int, h: float, shape: str):
     return Grid(cells=(cells,), h=h), Boundary(faces=(("x_lo", "fixed"),))
 
 
-def _check_cells(scene: str, name: str, value, least: int) -> None:
-    """A builder's cell count: an integer >= least (named as the option, not as the grid it makes)."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < least:
-        raise ValueError(f"{scene}: {name} = {value!r} is invalid: allowed an integer >= {least}")
+def vibrating_bar_ranges(**_) -> dict:
+    """The allowed values of `vibrating_bar`'s options."""
+    return {"cells": integer(2), "v0": Range("a finite number (m/s)", options._real), "shape": SHAPE, "cfl": CFL,
+            "ppc": PPC}
 
 
 def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: float = 0.1, ppc: int = 2) -> Scene:
@@ -71,7 +91,7 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
     Measures: displacement error against the exact solution, energy conservation. With shape
     "bspline2" the grid starts one cell below x = 0 (`_fixed_low_end`).
     """
-    _check_cells("vibrating_bar", "cells", cells, 2)
+    options.check("vibrating_bar", vibrating_bar_ranges(), dict(cells=cells, v0=v0, shape=shape, cfl=cfl, ppc=ppc))
     L = BAR_LENGTH
     h = L / cells
     n_grid = cells + max(2, int(math.ceil(0.2 * cells)))
@@ -83,6 +103,12 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
                  boundary=boundary, cfl=cfl, t_end=10.0, n_out=10)
 
 
+def self_weight_column_ranges(**_) -> dict:
+    """The allowed values of `self_weight_column`'s options."""
+    return {"cells": integer(2), "shape": SHAPE,
+            "load": Range("a number in (0, 1) (rho g L / E)", lambda v: options._real(v) and 0 < v < 1), "ppc": PPC}
+
+
 def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, ppc: int = 2) -> Scene:
     """1D soft column under its own weight (Bardenhagen & Kober, CMES 5 (2004) 477 style).
 
@@ -92,9 +118,7 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
     sigma(X) = -rho g (L - X) (1D, any strain, since sigma = E (F - 1) is the nominal stress).
     With shape "bspline2" the grid starts one cell below x = 0 (`_fixed_low_end`).
     """
-    _check_cells("self_weight_column", "cells", cells, 2)
-    if not (isinstance(load, (int, float)) and not isinstance(load, bool) and 0 < load < 1):
-        raise ValueError(f"self_weight_column: load = {load!r} is invalid: allowed a number in (0, 1) (rho g L / E)")
+    options.check("self_weight_column", self_weight_column_ranges(), dict(cells=cells, shape=shape, load=load, ppc=ppc))
     L, rho, g = 1.0, 1.0, 10.0
     E = rho * g * L / load
     h = L / cells
@@ -109,30 +133,60 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
                  damping=2.0 / period, cfl=0.2, t_end=20 * period, n_out=10)
 
 
+MPM88_BOX = (0.15, 0.55)      # the fluid block's lower and upper corner (m, every axis)
+
+
+def mpm88_particles(n_grid: int, dim: int, ppc_scale: float) -> tuple[int, int]:
+    """(particles, particles per cell per axis) of `mpm88`: the peers' 8192 particles in 2D
+    (8 n_grid^3 / 32 in 3D) times ppc_scale, laid as a lattice over the block."""
+    n_particles = int((8192 if dim == 2 else 8 * n_grid**dim // 32) * ppc_scale)
+    cells_in_box = (MPM88_BOX[1] - MPM88_BOX[0]) * n_grid
+    return n_particles, max(1, int(round((n_particles / cells_in_box**dim) ** (1.0 / dim))))
+
+
+def mpm88_least_n_grid(dim: int = 2, ppc_scale: float = 1.0) -> int:
+    """The smallest n_grid (>= 8) at which `mpm88`'s particles need at most MAX_PPC per cell per axis."""
+    n = 8
+    if dim == 2:        # the particle count is fixed: start near the bound, then step to it
+        n = max(8, int(mpm88_particles(8, dim, ppc_scale)[0] ** 0.5 / ((MPM88_BOX[1] - MPM88_BOX[0]) * (MAX_PPC + 0.5))) - 1)
+    while mpm88_particles(n, dim, ppc_scale)[1] > MAX_PPC and n < 100_000:   # 3D: the same ppc at any n_grid
+        n += 1
+    return n
+
+
+def _mpm88_scale_cap(dim: int) -> float:
+    """The largest ppc_scale `mpm88` takes in 3D, where the particles per cell do not depend on
+    n_grid (inf in 2D, where a finer grid takes any ppc_scale)."""
+    side = MPM88_BOX[1] - MPM88_BOX[0]
+    return (MAX_PPC + 0.5) ** 3 * side**3 * 32 / 8 if dim == 3 else math.inf
+
+
+def mpm88_ranges(dim: int = 2, ppc_scale: float = 1.0, **_) -> dict:
+    """The allowed values of `mpm88`'s options; n_grid's floor at the dim and ppc_scale given."""
+    ok = dim in (2, 3) and options._real(ppc_scale) and ppc_scale > 0
+    least = mpm88_least_n_grid(dim, ppc_scale) if ok else 8
+    note = f"at dim = {dim}, ppc_scale = {ppc_scale:g}: at most {MAX_PPC} particles per cell per axis" if ok else ""
+    cap = _mpm88_scale_cap(dim)
+    scale = number(0.0) if cap == math.inf else Range(
+        f"a finite number in (0, {cap:.4g}) (at dim = 3 the particles per cell do not depend on n_grid: at most "
+        f"{MAX_PPC} per axis)", lambda v: options._real(v) and 0 < v < cap)
+    return {"n_grid": integer(least, note), "dim": choice(2, 3), "ppc_scale": scale}
+
+
 def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     """The peers' benchmark scene ('mpm88'; ../shared/bench/peers/scene.py): a weakly compressible
     fluid block (K = 400 Pa, rho = 1 kg/m^3) falling under gravity 9.8 m/s^2 in a unit box with
     slip walls 3 nodes thick, quadratic B-spline APIC (MLS) transfer. The peers sample 8192 random
     particles (2D) in [0.15, 0.55]^d; here a regular lattice of about the same count fills that box.
     """
-    _check_cells("mpm88", "n_grid", n_grid, 8)
-    if dim not in (2, 3):
-        raise ValueError(f"mpm88: dim = {dim!r} is invalid: allowed 2 | 3")
-    if not (isinstance(ppc_scale, (int, float)) and math.isfinite(ppc_scale) and ppc_scale > 0):
-        raise ValueError(f"mpm88: ppc_scale = {ppc_scale!r} is invalid: allowed a finite number > 0")
-    n_particles = int((8192 if dim == 2 else 8 * n_grid**dim // 32) * ppc_scale)
-    box = 0.4
-    cells_in_box = box * n_grid
-    ppc = max(1, int(round((n_particles / cells_in_box**dim) ** (1.0 / dim))))
-    if ppc > MAX_PPC:
-        least = math.ceil(n_particles ** (1.0 / dim) / (box * (MAX_PPC + 0.5)))
-        raise ValueError(f"mpm88: n_grid = {n_grid} with ppc_scale = {ppc_scale:g} needs {ppc} particles per cell per axis "
-                         f"for the peers' {n_particles} particles: allowed at most {MAX_PPC} (n_grid >= {least} at this "
-                         f"ppc_scale, or a smaller ppc_scale)")
+    options.check("mpm88", {"dim": choice(2, 3)}, dict(dim=dim))
+    options.check("mpm88", mpm88_ranges(dim), dict(ppc_scale=ppc_scale))
+    options.check("mpm88", mpm88_ranges(dim, ppc_scale), dict(n_grid=n_grid))
+    n_particles, ppc = mpm88_particles(n_grid, dim, ppc_scale)
     mat = Material.make("mpm88_fluid", "linear_fluid", rho0=1.0, K=400.0)
     walls = tuple((f"{a}_{s}", "slip") for a in "xyz"[:dim] for s in ("lo", "hi"))
     return Scene(name="mpm88", description="peers' benchmark: weakly compressible fluid, APIC",
                  grid=Grid(cells=(n_grid,) * dim, h=1.0 / n_grid), shape="bspline2", transfer="apic",
-                 materials=(mat,), phases=(Phase("fluid", "mpm88_fluid", Box((0.15,) * dim, (0.55,) * dim), ppc=ppc),),
+                 materials=(mat,), phases=(Phase("fluid", "mpm88_fluid", Box((MPM88_BOX[0],) * dim, (MPM88_BOX[1],) * dim), ppc=ppc),),
                  gravity=(0.0, -9.8) if dim == 2 else (0.0, -9.8, 0.0), boundary=Boundary(faces=walls, layers=3),
                  cfl=0.5, t_end=0.1, n_out=10)

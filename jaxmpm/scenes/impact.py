@@ -3,11 +3,32 @@ from __future__ import annotations
 
 from jaxmpm.materials import library_material
 from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.scenes import options
 from jaxmpm.scenes.basic import _cells
+from jaxmpm.scenes.options import FLAG, choice, number, optional
 
 SPHERE_DIAMETER = 9.53e-3       # m (Piekutowski 1993)
 PLATE_THICKNESS = 2.21e-3       # m, t / D = 0.232
 IMPACT_SPEED = 6710.0           # m/s
+
+
+DEBRIS_CELL = 0.4e-3            # m, the cell at resolution 1
+POSITIVE = number(0.0)
+
+
+def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_DIAMETER, **_) -> dict:
+    """The allowed values of `debris_cloud`'s options (the resolution's floor at the plate_thickness
+    given: 4 cells across the plate; plate_radius's at the sphere_diameter given)."""
+    t = plate_thickness if POSITIVE.contains(plate_thickness) else PLATE_THICKNESS
+    d = sphere_diameter if POSITIVE.contains(sphere_diameter) else SPHERE_DIAMETER
+    return {"fields": choice(1, 2), "c_h": POSITIVE, "drag": POSITIVE, "t_end": number(0.0, unit="s"),
+            "plate_radius": number(d / 2, strict=False, unit="m", note="the sphere's radius"),
+            "speed": number(0.0, unit="m/s", note="the impact speed toward the plate"),
+            "plate_thickness": number(0.0, unit="m"), "sphere_diameter": number(0.0, unit="m"),
+            "gap": optional(number(0.0, strict=False, unit="m", note="from the sphere to the plate's top face"),
+                            "one cell"),
+            "fragmentation": choice("failed", "plastic"), "drag_heating": FLAG,
+            "resolution": options.resolution(options.cells_floor(t / DEBRIS_CELL, 4), 4, "the plate")}
 
 
 def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, drag: float = 1.0,
@@ -52,36 +73,20 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     shock dies in the plate (C_h = 0.02, without the walls, resolution 1: 5.33, 5.33, 6.10;
     resolution 2: 5.35, 5.35, 6.15): jaxmpm.constitutive.fragmentation_gate says why.
     """
-    if fields not in (1, 2):
-        raise ValueError(f"fields = {fields!r} is invalid: allowed 1 | 2")
-    if drag_heating is not False and fields != 2:
+    options.check("debris_cloud", debris_cloud_ranges(plate_thickness, sphere_diameter),
+                  dict(resolution=resolution, fields=fields, c_h=c_h, drag=drag, t_end=t_end, plate_radius=plate_radius,
+                       speed=speed, plate_thickness=plate_thickness, sphere_diameter=sphere_diameter, gap=gap,
+                       fragmentation=fragmentation, drag_heating=drag_heating))
+    if drag_heating and fields != 2:
         raise ValueError(f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 "
                          "(the heat is the drag's work between the projectile's and the plate's fields)")
-    for name, value in (("resolution", resolution), ("speed", speed), ("plate_thickness", plate_thickness),
-                        ("sphere_diameter", sphere_diameter), ("plate_radius", plate_radius), ("t_end", t_end)):
-        if isinstance(value, bool) or not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
-            raise ValueError(f"debris_cloud: {name} = {value!r} is invalid: allowed a finite number > 0"
-                             + (" (m/s, the impact speed toward the plate)" if name == "speed" else ""))
-    h = 0.4e-3 / resolution
-    if plate_thickness / h < 4 - 1e-9:
-        raise ValueError(f"debris_cloud: resolution = {resolution!r} gives {plate_thickness / h:.2f} cells across the "
-                         f"plate (h = {h:g} m): allowed >= 4 cells, i.e. resolution >= "
-                         f"{4 * 0.4e-3 / plate_thickness:.3g}")
+    h = DEBRIS_CELL / resolution
     gap = h if gap is None else gap
-    if isinstance(gap, bool) or not (isinstance(gap, (int, float)) and abs(gap) < float("inf")):
-        raise ValueError(f"debris_cloud: gap = {gap!r} is invalid: allowed a finite number >= 0 (m, the distance from "
-                         "the sphere to the plate's top face; default: one cell)")
-    if not gap >= 0:
-        raise ValueError(f"debris_cloud: gap = {gap!r} m puts the sphere into the plate: allowed >= 0 "
-                         "(the sphere must start above the plate's top face z = 0)")
-    if not plate_radius >= sphere_diameter / 2:
-        raise ValueError(f"debris_cloud: plate_radius = {plate_radius!r} m is below the sphere's radius "
-                         f"{sphere_diameter / 2:g} m: allowed >= the sphere's radius")
     R = sphere_diameter / 2
     z_lo = -(plate_thickness + speed * t_end + 10e-3)
     z_hi = 2 * R + gap + sphere_diameter
-    n_r = _cells((plate_radius + 3e-3) / 0.4e-3, resolution, 4)
-    n_z = _cells((z_hi - z_lo) / 0.4e-3, resolution, 4)
+    n_r = _cells((plate_radius + 3e-3) / DEBRIS_CELL, resolution, 4)
+    n_z = _cells((z_hi - z_lo) / DEBRIS_CELL, resolution, 4)
     al = library_material("al2024")
     return Scene(
         name="debris_cloud", description="Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric)",
@@ -138,6 +143,15 @@ TAYLOR_CASES = {   # material -> (L0 in m, D0 in m, speed in m/s, material build
 }
 
 
+def taylor_bar_ranges(**_) -> dict:
+    """The allowed values of `taylor_bar`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
+    case = "the chosen material's case"
+    return {"speed": optional(number(0.0, unit="m/s"), case), "length": optional(number(0.0, unit="m"), case),
+            "diameter": optional(number(0.0, unit="m"), case), "t_end": number(0.0, unit="s"),
+            "material": choice(*TAYLOR_CASES),
+            "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius")}
+
+
 def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: float | None = None,
                diameter: float | None = None, t_end: float = 80e-6, material: str = "copper_ofhc") -> Scene:
     """Taylor impact: a metal rod hits a rigid wall end-on. `material` "copper_ofhc" (default): the
@@ -189,20 +203,13 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
     With the same model kinds jaxmpm reproduces the finite element codes, so the copper rod's 6%
     points to the Johnson-Cook copper constants against the experiment rather than to the method.
     """
-    if material not in TAYLOR_CASES:
-        raise ValueError(f"taylor_bar: material = {material!r} is invalid: allowed {' | '.join(TAYLOR_CASES)}")
+    options.check("taylor_bar", taylor_bar_ranges(), dict(resolution=resolution, speed=speed, length=length,
+                                                         diameter=diameter, t_end=t_end, material=material))
     L0, D0, v0, build = TAYLOR_CASES[material]
     speed = v0 if speed is None else speed
     length = L0 if length is None else length
     diameter = D0 if diameter is None else diameter
-    for name, value in (("resolution", resolution), ("speed", speed), ("length", length), ("diameter", diameter),
-                        ("t_end", t_end)):
-        if not (isinstance(value, (int, float)) and 0 < value < float("inf")):
-            raise ValueError(f"taylor_bar: {name} = {value!r} is invalid: allowed a finite number > 0")
     h = diameter / 20 / resolution
-    if diameter / 2 / h < 3 - 1e-9:
-        raise ValueError(f"taylor_bar: resolution = {resolution!r} gives {diameter / 2 / h:.2f} cells across the "
-                         f"rod's radius: allowed >= 3 cells, i.e. resolution >= 0.3")
     n_r = max(4, int(round(1.4 * diameter / h)))
     n_z = int(round(length / h)) + 3
     mat = library_material("copper_ofhc", model="mie_gruneisen+johnson_cook_thermal") if build is None else build()
@@ -240,6 +247,12 @@ def brittle_rod_material():
                          sigma_t=100e6, tau_failed=1e-6)
 
 
+def taylor_brittle_ranges(**_) -> dict:
+    """The allowed values of `taylor_brittle`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
+    return {"speed": number(0.0, unit="m/s"), "length": number(0.0, unit="m"), "diameter": number(0.0, unit="m"),
+            "t_end": number(0.0, unit="s"), "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius")}
+
+
 def taylor_brittle(resolution: float = 1.0, speed: float = BRITTLE_SPEED, length: float = BRITTLE_LENGTH,
                    diameter: float = BRITTLE_DIAMETER, t_end: float = 30e-6) -> Scene:
     """Brittle Taylor impact: a glass-like rod hits a rigid wall end-on and cracks (the seed's
@@ -262,14 +275,9 @@ def taylor_brittle(resolution: float = 1.0, speed: float = BRITTLE_SPEED, length
     54% of the rod failed at 30 us (63% at resolution 0.5); kinetic + internal energy conserved to
     0.03%. At 50 m/s and above the failure front follows the compression wave and the whole rod fails within 6 us.
     """
-    for name, value in (("resolution", resolution), ("speed", speed), ("length", length), ("diameter", diameter),
-                        ("t_end", t_end)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < float("inf")):
-            raise ValueError(f"taylor_brittle: {name} = {value!r} is invalid: allowed a finite number > 0")
+    options.check("taylor_brittle", taylor_brittle_ranges(), dict(resolution=resolution, speed=speed, length=length,
+                                                                 diameter=diameter, t_end=t_end))
     h = diameter / 20 / resolution
-    if diameter / 2 / h < 3 - 1e-9:
-        raise ValueError(f"taylor_brittle: resolution = {resolution!r} gives {diameter / 2 / h:.2f} cells across the "
-                         "rod's radius: allowed >= 3 cells, i.e. resolution >= 0.3")
     n_r = max(4, int(round(2 * diameter / h)))
     n_z = int(round(length / h)) + 3
     glass = brittle_rod_material()

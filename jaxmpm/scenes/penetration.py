@@ -7,6 +7,8 @@ import numpy as np
 
 from jaxmpm.materials.library import library_constants, library_material
 from jaxmpm.scene import Boundary, Box, Difference, Grid, Phase, Scene
+from jaxmpm.scenes import options
+from jaxmpm.scenes.options import FLAG, choice, number, optional
 
 ROD_DIAMETER, ROD_LENGTH, ROD_SPEED = 7.5e-3, 75e-3, 2000.0     # m, m (L/D = 10), m/s
 REFERENCE_PLASTIC_STRAIN = 0.5
@@ -49,6 +51,17 @@ def tate_penetration_speed(v, rho_p: float, rho_t: float, y_p: float, r_t: float
     return np.maximum(u, 0.0)
 
 
+def rod_penetration_ranges(diameter=ROD_DIAMETER, **_) -> dict:
+    """The allowed values of `rod_penetration`'s options (2 cells across the rod's radius,
+    D / 10 / resolution each; the target at least the rod's diameter given)."""
+    d = diameter if number(0.0).contains(diameter) else ROD_DIAMETER
+    least = number(d, strict=False, unit="m", note="the rod's diameter")
+    return {"speed": number(0.0, unit="m/s"), "length": number(0.0, unit="m"), "diameter": number(0.0, unit="m"),
+            "fields": choice(1, 2, 3), "air": FLAG, "drag": number(0.0),
+            "target_radius": optional(least, "4 diameters"), "target_depth": optional(least, "speed t_end + 2 diameters"),
+            "t_end": number(0.0, unit="s"), "resolution": options.resolution(options.cells_floor(5, 2), 2, "the rod's radius")}
+
+
 def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: float = ROD_LENGTH,
                     diameter: float = ROD_DIAMETER, fields: int = 1, air: bool = False, drag: float = 1.0,
                     target_radius: float | None = None, target_depth: float | None = None,
@@ -88,29 +101,17 @@ def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: f
     the stress of the loaded metal drove the air beside it to tens of km/s within 2 us). Air in the
     solids' field (one field) is refused: it reached 25 km/s within 4 us and the run failed at 43 us.
     """
-    for name, value in (("resolution", resolution), ("speed", speed), ("length", length), ("diameter", diameter),
-                        ("t_end", t_end), ("drag", drag)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf):
-            raise ValueError(f"rod_penetration: {name} = {value!r} is invalid: allowed a finite number > 0")
-    if fields not in (1, 2, 3):
-        raise ValueError(f"rod_penetration: fields = {fields!r} is invalid: allowed 1 | 2 | 3")
-    if not isinstance(air, bool):
-        raise ValueError(f"rod_penetration: air = {air!r} is invalid: allowed true | false")
+    options.check("rod_penetration", rod_penetration_ranges(diameter),
+                  dict(resolution=resolution, speed=speed, length=length, diameter=diameter, fields=fields, air=air,
+                       drag=drag, target_radius=target_radius, target_depth=target_depth, t_end=t_end))
     if fields == 3 and not air:
         raise ValueError("rod_penetration: fields = 3 puts air in its own field: allowed only with air = true")
     if fields == 1 and air:
         raise ValueError("rod_penetration: air in the solids' velocity field is unstable (the air beside the impact "
                          "reached 25 km/s within 4 us and the run failed at 43 us): allowed fields = 2 | 3 with air")
     h = diameter / 10 / resolution
-    if diameter / 2 / h < 2 - 1e-9:
-        raise ValueError(f"rod_penetration: resolution = {resolution!r} gives {diameter / 2 / h:.2f} cells across the "
-                         "rod's radius: allowed >= 2 cells, i.e. resolution >= 0.4")
     target_radius = 4 * diameter if target_radius is None else target_radius
     target_depth = speed * t_end + 2 * diameter if target_depth is None else target_depth
-    for name, value, least in (("target_radius", target_radius, diameter), ("target_depth", target_depth, diameter)):
-        if not (isinstance(value, (int, float)) and least <= value < math.inf):
-            raise ValueError(f"rod_penetration: {name} = {value!r} m is invalid: allowed a finite number >= "
-                             f"the rod's diameter {least:g} m")
     n_r = int(round(target_radius / h))
     n_below = int(round(target_depth / h))
     n_above = int(math.ceil(length / h)) + 3
@@ -195,6 +196,12 @@ def laminate_material():
                          nu23=0.3, G12=4e9, fibre_theta=math.pi / 2, fibre_phi=0.0)
 
 
+def sandwich_target_ranges(**_) -> dict:
+    """The allowed values of `sandwich_target`'s options (3 cells across a 3 mm face sheet, 0.5 mm / resolution each)."""
+    return {"speed": number(0.0, unit="m/s"), "fields": choice(1, 2, 3), "drag": number(0.0), "t_end": number(0.0, unit="s"),
+            "resolution": options.resolution(options.cells_floor(6, 3), 3, "a face sheet")}
+
+
 def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int = 1, drag: float = 1.0,
                     t_end: float = 20e-6) -> Scene:
     """A tungsten projectile into a steel / composite / steel sandwich plate (the seed's last
@@ -224,15 +231,9 @@ def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int =
     version gained energy fourfold in 20 us (the interface forces' work was not stored) and the
     two-field one lost 44%.
     """
-    for name, value in (("resolution", resolution), ("speed", speed), ("t_end", t_end), ("drag", drag)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf):
-            raise ValueError(f"sandwich_target: {name} = {value!r} is invalid: allowed a finite number > 0")
-    if fields not in (1, 2, 3):
-        raise ValueError(f"sandwich_target: fields = {fields!r} is invalid: allowed 1 | 2 | 3")
+    options.check("sandwich_target", sandwich_target_ranges(),
+                  dict(resolution=resolution, speed=speed, fields=fields, drag=drag, t_end=t_end))
     h = 0.5e-3 / resolution
-    if 3e-3 / h < 3 - 1e-9:
-        raise ValueError(f"sandwich_target: resolution = {resolution!r} gives {3e-3 / h:.2f} cells across a face "
-                         "sheet: allowed >= 3 cells, i.e. resolution >= 0.5")
     radius, sheet, core, rod_d, rod_l = 25e-3, 3e-3, 6e-3, 6e-3, 18e-3
     below = 2 * sheet + core + speed * t_end * 0.5 + 4e-3
     n_r = int(round((radius + 2e-3) / h))
@@ -255,6 +256,14 @@ def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int =
 
 
 FLUIDS = ("air", "water")
+
+
+def projectile_concrete_ranges(**_) -> dict:
+    """The allowed values of `projectile_concrete`'s options (3 cells across the projectile's 5 mm
+    radius, 1 mm / resolution each)."""
+    return {"fluid": choice(*FLUIDS), "speed": number(0.0, unit="m/s"), "drag": number(0.0),
+            "standoff": number(0.0, unit="m"), "t_end": number(0.0, unit="s"),
+            "resolution": options.resolution(options.cells_floor(5, 3), 3, "the projectile's radius")}
 
 
 def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: float = 500.0, drag: float = 1.0,
@@ -283,16 +292,9 @@ def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: fl
     (1/2 rho v^2 C_D A with C_D = 0.8: 8.5 m/s): the exchange drag acts wherever projectile and
     water share a node, along the sides too, not only on the nose.
     """
-    if fluid not in FLUIDS:
-        raise ValueError(f"projectile_concrete: fluid = {fluid!r} is invalid: allowed {' | '.join(FLUIDS)}")
-    for name, value in (("resolution", resolution), ("speed", speed), ("drag", drag), ("standoff", standoff),
-                        ("t_end", t_end)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf):
-            raise ValueError(f"projectile_concrete: {name} = {value!r} is invalid: allowed a finite number > 0")
+    options.check("projectile_concrete", projectile_concrete_ranges(),
+                  dict(resolution=resolution, fluid=fluid, speed=speed, drag=drag, standoff=standoff, t_end=t_end))
     h = 1e-3 / resolution
-    if 5e-3 / h < 3 - 1e-9:
-        raise ValueError(f"projectile_concrete: resolution = {resolution!r} gives {5e-3 / h:.2f} cells across the "
-                         "projectile's radius: allowed >= 3 cells, i.e. resolution >= 0.6")
     radius, depth, p_d, p_l = 40e-3, 60e-3, 10e-3, 30e-3
     n_r = int(round(radius / h))
     n_below = int(round(depth / h))
