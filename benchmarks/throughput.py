@@ -284,6 +284,28 @@ def run_jaxmpm_child(name: str, a) -> dict:
     return dict(config=name, dim=a.dim, n_grid=a.n_grid, steps=a.steps) | r | dict(xla_flags=flag or "")
 
 
+def complete(rows):
+    """Add the ratio to the naive JAX peer, the device and the versions to every row; returns
+    (device, the common columns)."""
+    naive = next((r.get("mpart_steps_per_s") for r in rows if r["config"] == "jax-naive"), None)
+    device = next((r["device"] for r in sorted(rows, key=lambda r: not r["config"].startswith("jaxmpm")) if r.get("device")),
+                  "")   # a jaxmpm child's (the device's model included), else a JAX peer's
+    common = dict(cpu_count=os.cpu_count(), jax_version=importlib.metadata.version("jax"),
+                  date=datetime.datetime.now().isoformat(timespec="seconds"))
+    for r in rows:
+        rate = r.get("mpart_steps_per_s")
+        r["ratio_to_jax_naive"] = rate / naive if rate and naive else None
+        r.update(common | dict(device=device))
+    return device, common
+
+
+def write_table(rows, out):
+    with open(out, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+
+
 def fmt(v, spec):
     return "" if v is None or v == "" else format(v, spec)
 
@@ -365,7 +387,7 @@ def main(argv=None):
         unknown = sorted(set(wanted) - set(PEERS) - set(JAXMPM))
         if unknown:
             ap.error(f"--configs {','.join(unknown)} is invalid: allowed {', '.join(list(PEERS) + list(JAXMPM))}")
-        names = [n for n in names if n in wanted]
+        names = list(dict.fromkeys(wanted))            # in the order given
     else:
         left_out = CPU_ONLY if default_backend() != "cpu" else GPU_ONLY
         names = [n for n in names if n not in left_out]
@@ -384,16 +406,8 @@ def main(argv=None):
         print(f"  {name:20s} {fmt(row.get('mpart_steps_per_s'), '.3f'):>8s} Mpart-steps/s  "
               f"({time.perf_counter() - t0:.0f} s wall)  {row.get('note', '')}", file=sys.stderr, flush=True)
         rows.append(row)
-
-    naive = next((r.get("mpart_steps_per_s") for r in rows if r["config"] == "jax-naive"), None)
-    device = next((r["device"] for r in sorted(rows, key=lambda r: not r["config"].startswith("jaxmpm")) if r.get("device")),
-                  "")   # a jaxmpm child's (the device's model included), else a JAX peer's
-    common = dict(cpu_count=os.cpu_count(), jax_version=importlib.metadata.version("jax"),
-                  date=datetime.datetime.now().isoformat(timespec="seconds"))
-    for r in rows:
-        rate = r.get("mpart_steps_per_s")
-        r["ratio_to_jax_naive"] = rate / naive if rate and naive else None
-        r.update(common | dict(device=device))
+        device, common = complete(rows)
+        write_table(rows, out)                   # after every row: a run stopped at a time limit keeps its rows
 
     # the table
     print(f"\nmpm88 {a.dim}D, {a.n_grid}^{a.dim} grid, float32, dt = {peer_dt(a.dim, a.n_grid):.3g} s; "
@@ -408,10 +422,6 @@ def main(argv=None):
               f"{'%s kernels, %s launches/step; ' % (r['kernels'], r['launches_per_step']) if r.get('kernels') else ''}"
               f"{r.get('note', '')}")
 
-    with open(out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
     plot(rows, out.with_suffix(".png"))
     print(f"\nwrote {out} and {out.with_suffix('.png')}")
 

@@ -46,16 +46,25 @@ def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
     return grid, ddmp.build(grid, nodal_volume, jnp.asarray(cell_volume), axisymmetric)
 
 
+@pytest.mark.parametrize("form", ["cpu", "gpu"])
 @pytest.mark.parametrize("dim", [1, 2, pytest.param(3, marks=pytest.mark.slow)])
-def test_add_corners_equals_shifted_sums(dim):
+def test_add_corners_equals_shifted_sums(dim, form):
+    """Both forms of the corner sums (jaxmpm/forms.py: a loop over the corners, one fused sum),
+    values, gradients and a batched second derivative."""
+    from jaxmpm.forms import transfer_forms
     rng = np.random.default_rng(dim)
     cells = (3, 4, 2)[:dim]
     c = jnp.asarray(rng.normal(size=(2,) + cells + (2**dim, 3, 2)))
-    np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
     w = jnp.asarray(rng.normal(size=(2,) + tuple(n + 1 for n in cells) + (3, 2)))
-    g1 = jax.grad(lambda c: jnp.sum(w * ddmp.add_corners(c, dim) ** 2))(c)
-    g2 = jax.grad(lambda c: jnp.sum(w * add_corners_shifted(c, dim) ** 2))(c)
+    loss = lambda add: lambda c: jnp.sum(w * jnp.sin(add(c, dim)))
+    hvp = lambda add: jax.vmap(lambda t: jax.jvp(jax.grad(loss(add)), (c,), (t,))[1])(jnp.stack([c, c ** 2]))
+    with transfer_forms(form):
+        np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
+        g1, h1 = jax.grad(loss(ddmp.add_corners))(c), hvp(ddmp.add_corners)
+    g2, h2 = jax.grad(loss(add_corners_shifted))(c), hvp(add_corners_shifted)
     np.testing.assert_allclose(g1, g2, rtol=RTOL, atol=1e-14)
+    np.testing.assert_allclose(h1, h2, rtol=1e-11, atol=1e-13)
+    assert float(jnp.abs(h2).max()) > 0
 
 
 @pytest.mark.parametrize("native", [False, True])
