@@ -32,7 +32,9 @@ Rows:
                             where JAX's default backend is a GPU, or named in --configs.
 --ppc P sets jaxmpm's lattice to P particles per cell per axis and runs the peers with the same
 number of particles (their ppc_scale argument = jaxmpm's count / their default count), in the same
-box: equal particle counts per row. Without it each side keeps its own default count.
+box: equal particle counts per row. Without it each side keeps its own default count. --timeout S
+limits each configuration's process (a row that runs past it says so); the table is rewritten
+after every row, so a run stopped early keeps the rows it finished.
 A run is "stable" when, after all (1 + repeats) * steps steps (2D defaults: t = 0.4 s; the block hits
 the floor at ~0.16 s), every state value is finite, all particles are in the grid, max |v| < 10 m/s
 (free fall from the block's top gives ~3.3 m/s, the splash ~7 m/s) and the total energy (kinetic +
