@@ -121,6 +121,7 @@ def main():
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=7, help="interleaved rounds; the fastest counts")
     ap.add_argument("--x64", action="store_true")
+    ap.add_argument("--short", action="store_true", help="one field and three (continuity form) on the whole grid only")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "multifield_cost.csv"))
     add_overwrite(ap)
     a = ap.parse_args()
@@ -129,9 +130,11 @@ def main():
         jax.config.update("jax_enable_x64", True)
     configs = [(1, "auto", False)] + [(k, c, False) for c in ("transport", "off") for k in (2, 3)]
     configs += [(1, "auto", True), (3, "transport", True)]
+    if a.short:
+        configs = [(1, "auto", False), (3, "transport", False)]
     rows = measure_all(configs, a.n_grid, a.steps, a.repeats)
     base = {w: next(r for r in rows if r["fields"] == 1 and (r["window"] != "grid") == w)["ns_per_particle_step"]
-            for w in (False, True)}
+            for w in (False, True) if any(r["fields"] == 1 and (r["window"] != "grid") == w for r in rows)}
     print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {describe()}, "
           f"{os.cpu_count()} CPUs, jax {jax.__version__}")
     print("x 1 field: against one field computed the same way (whole grid, or blocks); x grid: against one field on the whole grid")

@@ -272,6 +272,8 @@ def cmd_synthetic(args) -> int:
 def build_parser():
     ap = argparse.ArgumentParser(prog="python -m calibration", description=__doc__,
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--no-cache", action="store_true", help="no persistent compilation cache (default: on, in "
+                    "~/.cache/jaxmpm/xla or $JAXMPM_CACHE_DIR; JAXMPM_NO_CACHE=1 also turns it off)")
     sub = ap.add_subparsers(dest="command", required=True)
     for name, fn, default_out in (("table", cmd_table, "calibration_table"), ("fit", cmd_fit, "calibration_fit")):
         p = sub.add_parser(name, formatter_class=argparse.ArgumentDefaultsHelpFormatter, help={
@@ -321,6 +323,9 @@ def build_parser():
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if not args.no_cache:
+        from jaxmpm import compile_cache
+        compile_cache.enable()      # before anything compiles: a second start reads the programs back
     try:
         return args.fn(args)
     except (ValueError, FileExistsError) as e:

@@ -14,6 +14,8 @@ from jaxmpm import distributed as distributed
 from jaxmpm import features as features
 from jaxmpm.batch import ensemble as ensemble
 from jaxmpm.compile import jit as jit
+from jaxmpm import compile_cache as compile_cache
+from jaxmpm import forms as forms
 from jaxmpm import io as io
 from jaxmpm.materials import Material as Material
 from jaxmpm.params import Params as Params, check_params as check_params, default_params as default_params

@@ -159,6 +159,9 @@ def _run(args) -> int:
             args.x64 = True
     if args.x64:
         jax.config.update("jax_enable_x64", True)
+    if not args.no_cache:
+        from jaxmpm import compile_cache
+        compile_cache.enable()
     import jaxmpm
     from jaxmpm import diagnostics, io, restart
     from jaxmpm.scenes import initial_state
@@ -370,6 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace existing output files")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--x64", action="store_true", help="double precision (float64)")
+    run.add_argument("--no-cache", action="store_true", help="no persistent compilation cache (default: on, in "
+                     "~/.cache/jaxmpm/xla or $JAXMPM_CACHE_DIR; JAXMPM_NO_CACHE=1 also turns it off)")
     run.add_argument("--debug", action="store_true",
                      help="check every step under checkify (slower): stop at the first non-finite or out-of-grid "
                           "particle, or the first NaN, naming the step")

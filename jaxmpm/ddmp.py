@@ -27,6 +27,7 @@ import numpy as np
 
 from jaxmpm.compile import bilinear_contraction
 from jaxmpm.fields import safe_div
+from jaxmpm.forms import transfer_form
 from jaxmpm.state import stencil_offsets
 
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
@@ -79,11 +80,21 @@ def corners(a, dim):
     return jnp.stack(out, axis=1 + dim)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
 def add_corners(c, dim):
-    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...): for each of
-    the 2^d corners, the cells' slab added to the nodes' slab shifted by that corner, in a loop over
-    the corners. The loop keeps the sum out of its consumers: fused into the particles' gather, an
+    """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...), in c's
+    units. The CPU form (`forms.transfer_form`) loops over the corners (`_add_corners_by_slab`);
+    the GPU form is one fused sum of the 2^d padded copies, kept as one array (an optimisation
+    barrier) so that XLA does not fuse it into, and repeat it in, each consumer; a loop there
+    launches kernels per corner. Both have the same derivatives (the padded sum's)."""
+    if transfer_form() == "gpu":
+        return jax.lax.optimization_barrier(_add_corners_padded(c, dim))
+    return _add_corners_by_slab(c, dim)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
+def _add_corners_by_slab(c, dim):
+    """add_corners: for each of the 2^d corners, the cells' slab added to the nodes' slab shifted
+    by that corner, in a loop over the corners. The loop keeps the sum out of its consumers: fused into the particles' gather, an
     unrolled sum of shifted copies had every cell's contraction recomputed once per particle and
     stencil node (a DDMP step 2-3x slower on the CPU). Slab adds, unlike the scatter-add that did
     this before, run vectorised over the cells: a DDMP step 13-15% faster (measured on the peers'
@@ -95,12 +106,12 @@ def add_corners(c, dim):
     return _add_corners_loop(c, dim)
 
 
-@add_corners.defjvp
+@_add_corners_by_slab.defjvp
 def _add_corners_jvp(dim, primals, tangents):
     (c,), (dc,) = primals, tangents
-    # the value through add_corners itself, so that a derivative of this rule meets it again; the
+    # the value through the loop itself, so that a derivative of this rule meets it again; the
     # barrier, transposed to one on the cotangent, keeps that cotangent an array for the slices
-    return add_corners(c, dim), jax.lax.optimization_barrier(_add_corners_padded(dc, dim))
+    return _add_corners_by_slab(c, dim), jax.lax.optimization_barrier(_add_corners_padded(dc, dim))
 
 
 def _add_corners_loop(c, dim):

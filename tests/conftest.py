@@ -9,6 +9,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 if os.environ.get("JAXMPM_TEST_XLA_OPT", "0") != "default":
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
 
+# jaxmpm's commands run in the tests without the persistent compilation cache (no writes into the
+# user's cache folder); tests/test_compile_cache.py turns it on in its own processes
+os.environ.setdefault("JAXMPM_NO_CACHE", "1")
+
 import jax
 
 jax.config.update("jax_enable_x64", True)

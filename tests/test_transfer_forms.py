@@ -46,16 +46,25 @@ def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
     return grid, ddmp.build(grid, nodal_volume, jnp.asarray(cell_volume), axisymmetric)
 
 
+@pytest.mark.parametrize("form", ["cpu", "gpu"])
 @pytest.mark.parametrize("dim", [1, 2, pytest.param(3, marks=pytest.mark.slow)])
-def test_add_corners_equals_shifted_sums(dim):
+def test_add_corners_equals_shifted_sums(dim, form):
+    """Both forms of the corner sums (jaxmpm/forms.py: a loop over the corners, one fused sum),
+    values, gradients and a batched second derivative."""
+    from jaxmpm.forms import transfer_forms
     rng = np.random.default_rng(dim)
     cells = (3, 4, 2)[:dim]
     c = jnp.asarray(rng.normal(size=(2,) + cells + (2**dim, 3, 2)))
-    np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
     w = jnp.asarray(rng.normal(size=(2,) + tuple(n + 1 for n in cells) + (3, 2)))
-    g1 = jax.grad(lambda c: jnp.sum(w * ddmp.add_corners(c, dim) ** 2))(c)
-    g2 = jax.grad(lambda c: jnp.sum(w * add_corners_shifted(c, dim) ** 2))(c)
+    loss = lambda add: lambda c: jnp.sum(w * jnp.sin(add(c, dim)))
+    hvp = lambda add: jax.vmap(lambda t: jax.jvp(jax.grad(loss(add)), (c,), (t,))[1])(jnp.stack([c, c ** 2]))
+    with transfer_forms(form):
+        np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
+        g1, h1 = jax.grad(loss(ddmp.add_corners))(c), hvp(ddmp.add_corners)
+    g2, h2 = jax.grad(loss(add_corners_shifted))(c), hvp(add_corners_shifted)
     np.testing.assert_allclose(g1, g2, rtol=RTOL, atol=1e-14)
+    np.testing.assert_allclose(h1, h2, rtol=1e-11, atol=1e-13)
+    assert float(jnp.abs(h2).max()) > 0
 
 
 @pytest.mark.parametrize("native", [False, True])
@@ -400,3 +409,137 @@ def test_tangent_fence_passes_the_tangent_where_on_and_zero_where_off():
     for on in (True, False):                                              # a pytree: one conditional
         expected = (2 * x * jnp.cos(x * x) + 3) if on else jnp.zeros_like(x)
         np.testing.assert_allclose(jax.grad(tree)(x, jnp.asarray(on)), expected, rtol=1e-14)
+
+
+
+# ------------------------------------------------------------------ the GPU forms against the CPU's
+def _form_scene(case):
+    """Small scenes that take every transfer and DDMP corner sum the two forms write differently
+    (jaxmpm/forms.py): APIC in 1D, 2D and 3D; DDMP musl in 1D, 2D, 3D and axisymmetric; two
+    velocity fields in 1D (exchange, interface forces) and axisymmetric."""
+    import dataclasses
+
+    from impact_blocks import two_blocks
+
+    import jaxmpm
+    from jaxmpm.scene import Box, Phase, Scene
+    from jaxmpm.scene import Grid as SceneGrid
+    from jaxmpm.scenes import basic, impact
+
+    fluid = jaxmpm.Material.make("fluid", "linear_fluid", rho0=1.0, K=400.0)
+    steel = jaxmpm.Material.make("steel", "linear_elastic", rho0=7800.0, E=200e9, nu=0.3)
+    if case == "apic-1d":
+        return Scene(grid=SceneGrid(cells=(12,), h=0.1), shape="bspline2", transfer="apic", materials=(fluid,),
+                     phases=(Phase("a", "fluid", Box((0.3,), (0.8,)), velocity=(0.7,)),), gravity=(-9.8,))
+    if case in ("apic-2d", "apic-3d"):
+        return basic.mpm88(n_grid=8, dim=int(case[-2]), ppc_scale=0.005 if case == "apic-2d" else 1.0)
+    if case == "ddmp-1d":
+        return basic.vibrating_bar(cells=10)
+    if case == "ddmp-2d":
+        return basic.elastic_impact(resolution=0.25)
+    if case == "ddmp-3d":
+        return dataclasses.replace(basic.mpm88(n_grid=8, dim=3), shape="ddmp", transfer="musl")
+    if case == "ddmp-axisymmetric":
+        return Scene(grid=SceneGrid(cells=(5, 8), h=1e-3, origin=(0.0, 0.0)), axisymmetric=True, materials=(steel,),
+                     phases=(Phase("rod", "steel", Box((0.0, 1e-3), (3e-3, 6e-3)), velocity=(0.0, -50.0)),))
+    if case == "two-fields-1d":
+        return two_blocks(1.0, "transport", cells=24)
+    if case == "two-fields-axisymmetric":
+        return impact.debris_cloud(resolution=0.75, fields=2)
+    raise ValueError(case)
+
+
+def _steps_and_gradient(scene, form, n_steps=3):
+    """n_steps of scene's step at a fixed dt traced in the given form, and the gradient of a
+    weighted sum of the final positions, velocities and stresses with respect to the initial
+    positions and velocities (float64)."""
+    import dataclasses
+
+    import jaxmpm
+    from jaxmpm.forms import transfer_forms
+
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.initial_state(scene, params)
+    dt = 0.2 * float(jaxmpm.cfl_limit(scene, params, s0))
+    rng = np.random.default_rng(5)
+    wx, wv = (jnp.asarray(rng.normal(size=s0.x.shape)) for _ in range(2))
+    ws = jnp.asarray(rng.normal(size=s0.stress.shape))
+    with transfer_forms(form):
+        step = jaxmpm.make_step(scene)
+
+        def run(x, v):
+            s = dataclasses.replace(s0, x=x, v=v)
+            for _ in range(n_steps):
+                s = step(params, s, jnp.inf, dt)
+            return s
+
+        def loss(x, v):
+            s = run(x, v)
+            return jnp.sum(wx * s.x) / scene.grid.h + jnp.sum(wv * s.v) + jnp.sum(ws * jnp.sin(s.stress / scale))
+
+        final = jaxmpm.jit(run)(s0.x, s0.v)
+        scale = float(jnp.max(jnp.abs(final.stress))) or 1.0
+        grad = jaxmpm.jit(jax.grad(loss, argnums=(0, 1)))(s0.x, s0.v)
+    return s0, final, grad
+
+
+FORM_CASES = ["apic-1d", "apic-2d", pytest.param("apic-3d", marks=pytest.mark.slow), "ddmp-1d",
+              pytest.param("ddmp-2d", marks=pytest.mark.slow),
+              pytest.param("ddmp-3d", marks=pytest.mark.slow), "ddmp-axisymmetric", "two-fields-1d",
+              pytest.param("two-fields-axisymmetric", marks=pytest.mark.slow)]
+
+
+@pytest.mark.parametrize("case", FORM_CASES)
+def test_gpu_forms_equal_the_cpu_forms(case):
+    """The steps traced in the GPU form (every stencil offset in one gather and one scatter-add,
+    DDMP's corner sums as one fused sum; forced on the CPU) equal the CPU form's: every state
+    value after three steps to round-off, and the gradient of the final positions, velocities and
+    stresses with respect to the initial positions and velocities to 1e-10 relative."""
+    scene = _form_scene(case)
+    (s0, cpu, g_cpu), (_, gpu, g_gpu) = (_steps_and_gradient(scene, form) for form in ("cpu", "gpu"))
+    for name in ("x", "v", "stress", "C", "F", "volume", "energy"):
+        a, b = getattr(gpu, name, None), getattr(cpu, name, None)
+        if b is None:
+            continue
+        scale = float(jnp.max(jnp.abs(b))) or 1.0
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=name)
+    assert float(jnp.max(jnp.abs(cpu.x - s0.x))) > 0, "the steps moved no particle"
+    for a, b in zip(g_gpu, g_cpu):
+        scale = float(jnp.max(jnp.abs(b)))
+        assert scale > 0
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * scale)
+
+
+def test_gpu_form_has_no_loop_over_offsets_or_corners():
+    """The GPU form's traced step has no loop (the CPU form loops over the stencil offsets in APIC's
+    grid-to-particle transfer and over the cell corners in DDMP's sums), and each form is the one
+    the context, the environment (JAXMPM_TRANSFER_FORM) and the backend pick, in that order."""
+    import os
+
+    import jaxmpm
+    from jaxmpm.forms import ENV, transfer_form, transfer_forms
+    from jaxmpm.scenes import basic
+
+    for scene in (basic.mpm88(n_grid=8, ppc_scale=0.005), basic.elastic_impact(resolution=0.25)):
+        params = jaxmpm.default_params(scene)
+        s0 = jaxmpm.initial_state(scene, params)
+        loops = {}
+        for form in ("cpu", "gpu"):
+            with transfer_forms(form):
+                jaxpr = jax.make_jaxpr(jaxmpm.make_step(scene))(params, s0, jnp.inf, 1e-6)
+            loops[form] = [e for e in _eqns(jaxpr.jaxpr) if e.primitive.name in ("while", "scan")]
+        assert loops["cpu"] and not loops["gpu"], (scene.name, {k: len(v) for k, v in loops.items()})
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv(ENV, raising=False)
+        assert transfer_form() == ("cpu" if jax.default_backend() == "cpu" else "gpu")
+        mp.setenv(ENV, "gpu")
+        assert transfer_form() == "gpu"
+        with transfer_forms("cpu"):
+            assert transfer_form() == "cpu"
+        mp.setenv(ENV, "fast")
+        with pytest.raises(ValueError, match="JAXMPM_TRANSFER_FORM = 'fast' is invalid: allowed auto | cpu | gpu"):
+            transfer_form()
+    with pytest.raises(ValueError, match="allowed auto"):
+        with transfer_forms("tpu"):
+            pass
+    assert os.environ.get(ENV) in (None, "auto", "cpu", "gpu")
