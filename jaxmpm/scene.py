@@ -111,7 +111,7 @@ class Boundary:
         return dict(self.faces).get(f"{AXES[axis]}_{side}", "free")
 
 
-FRAGMENTATION = ("failed", "plastic")
+FRAGMENTATION = ("failed", "plastic", "tensile")
 CONTINUITY = ("auto", "off", "transport")
 FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
 

@@ -391,14 +391,16 @@ def compose(eos, strength, failure):
     def update(c, mp, L, D, dt, work, q, alpha_of):
         d = L.shape[-1]
         eye = _eye(d, L.dtype)
-        Dm = 0.5 * (L + jnp.swapaxes(L, -1, -2))
+        # the deviatoric rate is the velocity field's (D); the closure (E4) changes only the volume
+        # rate in L. In 1D and plane strain the out-of-plane rates are zero, so the in-plane
+        # deviator of an isotropically changed L would carry the closure's volume rate into the shear
         W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
         F = jnp.matmul(eye + dt * L, mp.F)
         s_old = mp.stress + mp.pressure[:, None, None] * eye
-        epsdot = equivalent_rate(Dm)
+        epsdot = equivalent_rate(D)
         p_old = mp.pressure
         if strength:
-            Ddev = Dm - (_tr(Dm) / 3)[:, None, None] * eye
+            Ddev = D - (_tr(D) / 3)[:, None, None] * eye
             s_tr = s_old + dt * (2 * c["G"] * Ddev + W @ s_old - s_old @ W)
             if strength == "elastic":
                 s_new, dl = s_tr, jnp.zeros_like(mp.eps_ps)
@@ -410,11 +412,14 @@ def compose(eos, strength, failure):
         qn = jnp.zeros_like(p_old) if q is None else q
         a_old = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)
         a_new = 1.0 if alpha_of is None else alpha_of(eps_new)
+        # the deviator's factor in the grid force (closure 'tensile': the intact fraction 1 - D)
+        shear = getattr(alpha_of, "shear", None)
+        g_old, g_new = (1.0, 1.0) if shear is None else (shear(mp.eps_ps)[:, None, None], shear(eps_new)[:, None, None])
         A, B = eos_coefficients(eos, c, mp.rho_new)
         h = 0.5 * work * _tr(D)
 
         def energy_solve(s):
-            w_dev = work * jnp.sum(0.5 * (s_old + s) * D, axis=(-1, -2))
+            w_dev = work * jnp.sum(0.5 * (g_old * s_old + g_new * s) * D, axis=(-1, -2))
             e = (mp.energy + w_dev - h * (a_old * p_old + a_new * (A + qn))) / (1 + h * a_new * B)
             return e, w_dev
 

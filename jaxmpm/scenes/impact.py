@@ -82,7 +82,8 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     z_hi = 2 * R + gap + sphere_diameter
     n_r = _cells((plate_radius + 3e-3) / 0.4e-3, resolution, 4)
     n_z = _cells((z_hi - z_lo) / 0.4e-3, resolution, 4)
-    al = library_material("al2024")
+    al = (library_material("al2024", model="mie_gruneisen+johnson_cook_thermal") if fragmentation == "tensile"
+          else library_material("al2024"))
     return Scene(
         name="debris_cloud", description="Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric)",
         grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, z_lo)), axisymmetric=True, materials=(al,),
