@@ -80,11 +80,6 @@ def tension_mask(lay, state):
     return (pressure(lay, state) < 0).astype(state.mass.dtype)
 
 
-def _hydro_mask(lay):
-    return np.concatenate([np.full(sl.stop - sl.start, model_of(lay.scene.material(p).model).hydro, bool)
-                           for p, sl in zip(lay.scene.phases, lay.slices)])
-
-
 def pressure(lay, state):
     """(N,) pressure of every particle, Pa: state.pressure for the hydrocode models (EOS plus
     artificial viscosity), -tr(stress) / d for the total-stress models (so a user who edits the
@@ -101,18 +96,12 @@ def force_stress(lay, params, state):
     """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the pressure scaled by
     the closure's factor a (`pressure_factor`), sigma + (1 - a) p I, so a fragmented material does
     no work through a volume change it does not have (p = state.pressure, the pressure the stress
-    holds). With fragmentation 'tensile' the deviator s = sigma + p I of the hydrocode models is
-    scaled by the intact fraction 1 - D as well: (1 - D) s - a p I (fragments carry no shear)."""
+    holds)."""
     if lay.scene.c_h is None:
         return state.stress
     d = state.stress.shape[-1]
     p = pressure(lay, state)
-    eye = jnp.eye(d, dtype=state.stress.dtype)
-    sigma = state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * eye
-    if lay.scene.fragmentation != "tensile" or not _hydro_mask(lay).any():
-        return sigma
-    lost = jnp.asarray(_hydro_mask(lay), state.damage.dtype) * state.damage          # D of hydrocode phases, else 0
-    return sigma - lost[:, None, None] * (state.stress + p[:, None, None] * eye)
+    return state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
 
 
 def model_groups(lay):
@@ -270,8 +259,6 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
 
             def alpha_of(eps):    # the pressure's factor: alpha in tension, 1 in compression
                 return jnp.where(m0.pressure < 0, intact(eps), 1.0)
-
-            alpha_of.shear = intact     # the deviator's factor (hydrocode models)
         else:               # the gate of the step's start: the damage the force and volume rate used
             alpha_of = lambda eps: 1.0 - gate * jnp.tanh(eps / params.c_h)
         return tuple(model.update(c, MatPoint(*mp), L_mat, D, dt, work, q, alpha_of))

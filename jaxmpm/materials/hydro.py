@@ -412,14 +412,11 @@ def compose(eos, strength, failure):
         qn = jnp.zeros_like(p_old) if q is None else q
         a_old = 1.0 if alpha_of is None else alpha_of(mp.eps_ps)
         a_new = 1.0 if alpha_of is None else alpha_of(eps_new)
-        # the deviator's factor in the grid force (closure 'tensile': the intact fraction 1 - D)
-        shear = getattr(alpha_of, "shear", None)
-        g_old, g_new = (1.0, 1.0) if shear is None else (shear(mp.eps_ps)[:, None, None], shear(eps_new)[:, None, None])
         A, B = eos_coefficients(eos, c, mp.rho_new)
         h = 0.5 * work * _tr(D)
 
         def energy_solve(s):
-            w_dev = work * jnp.sum(0.5 * (g_old * s_old + g_new * s) * D, axis=(-1, -2))
+            w_dev = work * jnp.sum(0.5 * (s_old + s) * D, axis=(-1, -2))
             e = (mp.energy + w_dev - h * (a_old * p_old + a_new * (A + qn))) / (1 + h * a_new * B)
             return e, w_dev
 

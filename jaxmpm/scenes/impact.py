@@ -29,7 +29,9 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     strength with thermal softening, spall and Johnson-Cook failure), in `fields` velocity fields
     (2: projectile and plate apart, coupled by drag C_d = `drag` and the common pressure; 1: one
     field). Effects: the alpha closure with C_h = `c_h` (E4, E5, E8; `fragmentation` 'failed': only
-    failed material counts its plastic strain as fragmentation; 'plastic': the seed's E5),
+    failed material counts its plastic strain as fragmentation; 'plastic': the seed's E5; 'tensile':
+    only plastic strain accrued in tension, compressive pressure kept, and al2024 without its failure
+    parts, so that fragmentation is the closure's: docs/closure.md),
     artificial viscosity (0.5, 2.0); with fields = 2 and `drag_heating`, the drag's work booked as
     heat (Scene.drag_heating: the run then keeps 0.995 of its energy, 0.970 without).
     Walls: slip on the outer radius, top and bottom of the grid (jets from the contact rim reach them;
@@ -51,6 +53,10 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     reproduced. With fragmentation = 'plastic' (the seed's literal E5) the trend is there but the
     shock dies in the plate (C_h = 0.02, without the walls, resolution 1: 5.33, 5.33, 6.10;
     resolution 2: 5.35, 5.35, 6.15): jaxmpm.constitutive.fragmentation_gate says why.
+    With fragmentation = 'tensile' (one field, 8x the initial CFL steps) C_h moves point 4 as in the
+    seed at resolution 2: 4.28 (C_h = 0.02), 4.98, 5.50, 6.09 (C_h = 1), points 1 and 2 at 5.4-5.9;
+    above resolution 2 single projectile particles on the axis move backward and point 4 does not
+    converge (docs/closure.md has every sweep).
     """
     if fields not in (1, 2):
         raise ValueError(f"fields = {fields!r} is invalid: allowed 1 | 2")
