@@ -86,6 +86,8 @@ def _check_scene(args, fields):
                             "effect with one field)"))
     _positive(args.t_end, "--t-end", " (s)")
     _positive(args.resolution, "--resolution")
+    if not (args.step_safety >= 1 and args.step_safety < np.inf):
+        raise ValueError(f"--step-safety {args.step_safety} is invalid: allowed a finite number >= 1")
     import jaxmpm
     try:
         jaxmpm.load_scene("debris_cloud", resolution=args.resolution, fields=args.fields, t_end=args.t_end,
@@ -122,7 +124,7 @@ def _setup(args):
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
     from calibration.model import CloudModel
-    return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end,
+    return CloudModel.build(resolution=args.resolution, fields=args.fields, t_end=args.t_end, safety=args.step_safety,
                             fragmentation=args.fragmentation, drag_heating=args.drag_heating)
 
 
@@ -286,11 +288,15 @@ def build_parser():
         p.add_argument("--t-end", type=float, default=6e-6, help="end time, s (velocities over the later half)")
         p.add_argument("--data", default=None, help="the experiment's CSV (None: the packaged copy)")
         p.add_argument("--out", default=default_out, help="output folder (must not hold a previous result)")
-        p.add_argument("--fragmentation", choices=("failed", "plastic"), default="failed",
-                       help="what the closure counts as fragmented: failed material's plastic strain (failed) "
-                       "or all plastic strain (plastic: the seed's E5)")
+        p.add_argument("--fragmentation", choices=("failed", "plastic", "tensile"), default="failed",
+                       help="what the closure counts as fragmented: failed material's plastic strain (failed), "
+                       "all plastic strain (plastic: the seed's E5) or plastic strain accrued in tension, with the "
+                       "compressive pressure kept (tensile); see docs/closure.md")
         p.add_argument("--drag-heating", action="store_true", help="book the drag's work as heat (Scene.drag_heating; "
                        "only with --fields 2): the run keeps its energy, and the fitted C_d, C_h change")
+        p.add_argument("--step-safety", type=float, default=2.0,
+                       help="scan steps as a multiple (>= 1) of the initial CFL estimate: the step shrinks as the "
+                       "cloud heats and jets (fragmentation tensile at resolution >= 1.5 needs ~8)")
         p.add_argument("--float32", action="store_true", help="run in float32 (otherwise float64: float32 adjoints of "
                        "the two-field cloud overflow past ~2 us)")
     t = sub.choices["table"]

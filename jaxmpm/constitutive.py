@@ -43,8 +43,41 @@ def fragmentation_gate(lay, state):
 
 def closure_alpha(lay, params, state):
     """(E5) alpha = 1 - G tanh(eps_ps / C_h): 1 for intact material, -> 0 when fragmented; G the
-    fragmentation gate (damage of phases that can fail, else 1: `fragmentation_gate`). (N,)"""
+    fragmentation gate (damage of phases that can fail, else 1: `fragmentation_gate`). With
+    fragmentation 'tensile', alpha = 1 - D, D = tanh(eps_t / C_h) the fragmented fraction that the
+    State's damage holds (`tensile_fragment_fraction`). (N,)"""
+    if lay.scene.fragmentation == "tensile":
+        return 1.0 - state.damage
     return 1.0 - fragmentation_gate(lay, state) * jnp.tanh(state.eps_ps / params.c_h)
+
+
+def pressure_factor(lay, params, state):
+    """(N,) the factor a of the particle pressure in the closure's grid force, common pressure and
+    volume rate (E4, E8): alpha, except with fragmentation 'tensile', where a = alpha only in
+    tension (p < 0) and 1 in compression: fragments in contact carry compression, not tension."""
+    alpha = closure_alpha(lay, params, state)
+    if lay.scene.fragmentation == "tensile":
+        return jnp.where(pressure(lay, state) < 0, alpha, 1.0)
+    return alpha
+
+
+def tanh_sum(a, b):
+    """tanh(atanh(a) + atanh(b)) = (a + b) / (1 + a b), for a, b in [0, 1]."""
+    return (a + b) / (1.0 + a * b)
+
+
+def tensile_fragment_fraction(c_h, damage, counted):
+    """(E5, fragmentation 'tensile') the fragmented fraction D = tanh(eps_t / C_h) after the
+    counted plastic strain increment `counted` (>= 0) from D = `damage`: exactly
+    tanh(atanh(D) + counted / C_h), in the form that needs no atanh (finite at D = 1). (N,)"""
+    return tanh_sum(damage, jnp.tanh(counted / c_h))
+
+
+def tension_mask(lay, state):
+    """(N,) 1.0 where this step's plastic strain counts toward fragmentation (fragmentation
+    'tensile'): where the particle is in tension at the step's start, p < 0 (p with the artificial
+    viscosity, >= 0). A shock compresses (p > 0): its plastic strain never counts. Else 0.0."""
+    return (pressure(lay, state) < 0).astype(state.mass.dtype)
 
 
 def pressure(lay, state):
@@ -61,13 +94,14 @@ def pressure(lay, state):
 
 def force_stress(lay, params, state):
     """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the pressure scaled by
-    alpha, sigma + (1 - alpha) p I, so a fragmented material does no work through a volume change it
-    does not have (p = state.pressure, the pressure the stress holds)."""
+    the closure's factor a (`pressure_factor`), sigma + (1 - a) p I, so a fragmented material does
+    no work through a volume change it does not have (p = state.pressure, the pressure the stress
+    holds)."""
     if lay.scene.c_h is None:
         return state.stress
     d = state.stress.shape[-1]
     p = pressure(lay, state)
-    return state.stress + ((1 - closure_alpha(lay, params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
+    return state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
 
 
 def model_groups(lay):
@@ -170,7 +204,7 @@ def material_volume_rate(lay, params, state, L, dt, p_amb):
     finite) the linearisation asks for log-strains of hundreds in one step and the volume
     overflows. The bound never acts at the strains of the validation scenes (|p - p_amb| / K < 0.3
     in shocked aluminium at 6.7 km/s)."""
-    alpha = closure_alpha(lay, params, state)
+    alpha = pressure_factor(lay, params, state)
     K, c = bulk_modulus_and_wave_speed(lay, params, state)
     tau = lay.scene.grid.h / c
     x = dt / tau
@@ -199,25 +233,39 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
     gate = None
+    D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
+    tensile = scene.c_h is not None and scene.fragmentation == "tensile"
     if scene.c_h is not None:
         p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
         rate = material_volume_rate(lay, params, state, L, dt, p_amb)
         L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
-        gate = fragmentation_gate(lay, state)
+        gate = tension_mask(lay, state) if tensile else fragmentation_gate(lay, state)
     vol = state.volume * jnp.exp(dt * rate)
     rho_new = state.mass / vol
     q = (artificial_viscosity(lay, params, state, rho_new, jnp.trace(L_mat, axis1=1, axis2=2))
          if scene.artificial_viscosity is not None else None)
-    D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
     work = dt * 0.5 * (vol + state.volume) / state.mass
     mp = MatPoint(state.F, state.stress, pressure(lay, state), state.energy, state.eps_ps, state.damage,
                   state.mass / state.volume, rho_new)
 
     def update(model, c, L_mat, D, work, q, gate, *mp):
-        # the gate of the step's start: the damage the force and volume rate used
-        alpha_of = None if gate is None else (lambda eps: 1.0 - gate * jnp.tanh(eps / params.c_h))
+        if gate is None:
+            alpha_of = None
+        elif tensile:
+            m0 = MatPoint(*mp)
+
+            def intact(eps):      # 1 - D after a plastic strain eps, counted where in tension
+                return 1.0 - tensile_fragment_fraction(params.c_h, m0.damage, gate * jnp.maximum(eps - m0.eps_ps, 0.0))
+
+            def alpha_of(eps):    # the pressure's factor: alpha in tension, 1 in compression
+                return jnp.where(m0.pressure < 0, intact(eps), 1.0)
+        else:               # the gate of the step's start: the damage the force and volume rate used
+            alpha_of = lambda eps: 1.0 - gate * jnp.tanh(eps / params.c_h)
         return tuple(model.update(c, MatPoint(*mp), L_mat, D, dt, work, q, alpha_of))
 
     new = MatPoint(*per_model(lay, params, update, L_mat, D, work, q, gate, *mp))
+    damage = new.damage
+    if tensile:
+        damage = tensile_fragment_fraction(params.c_h, damage, gate * jnp.maximum(new.eps_ps - state.eps_ps, 0.0))
     return dict(F=new.F, stress=new.stress, volume=vol, energy=new.energy, eps_ps=new.eps_ps,
-                pressure=new.pressure, damage=new.damage)
+                pressure=new.pressure, damage=damage)

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm import ddmp, fields
-from jaxmpm.constitutive import bulk_modulus_and_wave_speed, closure_alpha, pressure
+from jaxmpm.constitutive import bulk_modulus_and_wave_speed, pressure, pressure_factor
 from jaxmpm.nodal import node_volume, particle_radius, pressure_parts, scatter_named
 from jaxmpm.transfer import interpolate
 
@@ -24,7 +24,7 @@ def phase_pressure_and_compressibility(lay, params, state):
     its own stress, so it must not act through the common pressure either (E6, E13)."""
     p = pressure(lay, state)
     if lay.scene.c_h is not None:
-        p = closure_alpha(lay, params, state) * p
+        p = pressure_factor(lay, params, state) * p
     return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 

@@ -10,7 +10,8 @@
     params.drag_length                    () d of (E3), m (default: the cell size h)
     params.linear_drag                    () K_lin of the linear drag term, kg/(m^3 s) (only with scene.linear_drag)
     params.c_h                            () C_h of the closure (E5: alpha = 1 - tanh(eps_ps / C_h), times the damage D
-                                          with scene.fragmentation = 'failed'; only with scene.c_h)
+                                          with scene.fragmentation = 'failed'; eps_ps accrued in tension
+                                          with 'tensile'; only with scene.c_h)
     params.av_linear, params.av_quadratic () c_l, c_q of the artificial viscosity (only with scene.artificial_viscosity)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.

@@ -111,7 +111,7 @@ class Boundary:
         return dict(self.faces).get(f"{AXES[axis]}_{side}", "free")
 
 
-FRAGMENTATION = ("failed", "plastic")
+FRAGMENTATION = ("failed", "plastic", "tensile")
 CONTINUITY = ("auto", "off", "transport")
 FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
 
@@ -157,6 +157,9 @@ class Scene:
         1 - D tanh(eps_ps / C_h), D in [0, 1] its damage, so the plastic strain of intact material
         (a shock's) is not fragmentation; phases without a failure model use the seed's alpha.
         'plastic': the seed's alpha = 1 - tanh(eps_ps / C_h) for every phase (jaxmpm.constitutive).
+        'tensile': only plastic strain accrued in tension (p < 0) fragments, alpha = 1 - D with
+        D = tanh(eps_t / C_h) held in the State's damage, and alpha acts on tension only (compressive
+        pressure kept): a shock is untouched (docs/closure.md).
       artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
         q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
         av_quadratic), or None for none; only with equation-of-state (hydrocode) models.

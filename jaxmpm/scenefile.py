@@ -161,7 +161,7 @@ def scene_from_dict(d: Mapping) -> Scene:
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
-        kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic'")
+        kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic' | 'tensile'")
     if "continuity" in e:
         kw["continuity"] = _typed(e["continuity"], (str,), "effects.continuity", "'auto' | 'off' | 'transport'")
     if "body_force" in e:

@@ -284,6 +284,7 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     (["fit", "--landscape", "1"], r"--landscape 1 is invalid: allowed 0 \(none\) or an integer >= 2"),
     (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
     (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
+    (["table", "--step-safety", "0.5"], r"--step-safety 0.5 is invalid: allowed a finite number >= 1"),
     (["table", "--data", "no/such/table.csv"], r"--data no/such/table.csv: no such file \(allowed the path of a CSV"),
 ])
 def test_calibration_command_refuses_bad_options(tmp_path, capsys, argv, match):

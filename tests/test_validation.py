@@ -179,7 +179,7 @@ def test_debug_mode_gives_the_same_run():
 def test_fragmentation_option_round_trips_and_bad_values_are_named():
     scene = dataclasses.replace(jaxmpm.scenefile.scene_from_toml(SCENE_TOML), c_h=0.1, fragmentation="plastic")
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
-    with pytest.raises(ValueError, match=r"effects\.fragmentation = 'all' is invalid: allowed 'failed' \| 'plastic'"):
+    with pytest.raises(ValueError, match=r"effects\.fragmentation = 'all' is invalid: allowed 'failed' \| 'plastic' \| 'tensile'"):
         dataclasses.replace(scene, fragmentation="all")
     with pytest.raises(ValueError, match=r"effects\.fragmentation = 3 is invalid"):
         jaxmpm.scenefile.scene_from_toml(SCENE_TOML + "\n[effects]\nc_h = 0.1\nfragmentation = 3\n")

@@ -391,14 +391,16 @@ def compose(eos, strength, failure):
     def update(c, mp, L, D, dt, work, q, alpha_of):
         d = L.shape[-1]
         eye = _eye(d, L.dtype)
-        Dm = 0.5 * (L + jnp.swapaxes(L, -1, -2))
+        # the deviatoric rate is the velocity field's (D); the closure (E4) changes only the volume
+        # rate in L. In 1D and plane strain the out-of-plane rates are zero, so the in-plane
+        # deviator of an isotropically changed L would carry the closure's volume rate into the shear
         W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
         F = jnp.matmul(eye + dt * L, mp.F)
         s_old = mp.stress + mp.pressure[:, None, None] * eye
-        epsdot = equivalent_rate(Dm)
+        epsdot = equivalent_rate(D)
         p_old = mp.pressure
         if strength:
-            Ddev = Dm - (_tr(Dm) / 3)[:, None, None] * eye
+            Ddev = D - (_tr(D) / 3)[:, None, None] * eye
             s_tr = s_old + dt * (2 * c["G"] * Ddev + W @ s_old - s_old @ W)
             if strength == "elastic":
                 s_new, dl = s_tr, jnp.zeros_like(mp.eps_ps)
