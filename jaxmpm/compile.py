@@ -18,7 +18,6 @@ form, which stays the forward form).
 from __future__ import annotations
 
 import contextlib
-import contextvars
 import functools
 import os
 
@@ -26,7 +25,13 @@ import jax
 import numpy as np
 
 CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}   # empty: no YNNPACK fusions
-_NATIVE_REDUCTIONS = contextvars.ContextVar("jaxmpm_native_reductions", default=False)
+# Which forms code traced now takes. A JAX user context: JAX keys its caches of traces, lowerings
+# and executables on it (jit's, and those of checkpoint, custom_jvp, scan, keyed by function), so a
+# trace made in one form is never reused in the other. With a plain context variable a reduction
+# form traced inside `jit` (say, the step under jax.checkpoint) came back from those caches into a
+# later eager jax.grad, compiled without CPU_OPTIONS, where YNNPACK's fusion of it crashes the
+# process (a segmentation fault in the README's gradient example).
+_NATIVE_REDUCTIONS = jax.make_user_context(False)
 
 
 def native_reductions() -> bool:
@@ -35,17 +40,14 @@ def native_reductions() -> bool:
     reduction (`jnp.sum` over a broadcast product, whose reverse mode is a broadcast) is the one
     to use then; elsewhere YNNPACK takes the reductions and is slow for these shapes, and unrolled
     sums of slices are used (their reverse mode is a padded copy per slice)."""
-    return _NATIVE_REDUCTIONS.get()
+    return bool(_NATIVE_REDUCTIONS.value)
 
 
 @contextlib.contextmanager
 def native_reductions_forms(on: bool = True):
     """Within this context, code traced takes the forms of `native_reductions() == on`."""
-    token = _NATIVE_REDUCTIONS.set(on)
-    try:
+    with _NATIVE_REDUCTIONS(bool(on)):
         yield
-    finally:
-        _NATIVE_REDUCTIONS.reset(token)
 
 
 def _traced_natively(fun):
