@@ -26,7 +26,7 @@ from jaxmpm.params import check_params
 # the run's arguments and step plan (jaxmpm.planning), importable from here as before
 from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
                              count as count, plan_steps as plan_steps, seconds)
-from jaxmpm.state import check_state, phase_slices
+from jaxmpm.state import State, check_state, check_state_dtypes, phase_slices
 from jaxmpm.tangents import evolving_tangents
 from jaxmpm.step import cfl_time_step, make_step
 
@@ -300,6 +300,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     chunk = None if chunk is None else count("chunk", chunk)
     checkpoint = checkpoint_mode(checkpoint, state, n_steps)
     traced = _traced((params, state))
+    if traced and isinstance(state, State):
+        check_state_dtypes(state)
     if not traced:
         check_params(scene, params)
         check_state(scene, state)
