@@ -16,6 +16,9 @@ import contextlib
 import functools
 import math
 import os
+import signal
+import threading
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -373,13 +376,83 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
                         restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh)
 
 
+class Interrupted(KeyboardInterrupt):
+    """A host-driven run stopped by a signal (SIGINT, or SIGTERM where `interrupt_on` handles it)
+    after its current chunk, its restart file (if any) saved. signum: the signal's number."""
+
+    def __init__(self, signum: int, message: str = ""):
+        super().__init__(message or f"stopped by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def interrupt_on(signum, frame):
+    """A signal handler that raises `Interrupted` (a KeyboardInterrupt), so that `finally` blocks
+    clean up; `jaxmpm run` installs it for SIGTERM. While the host driver runs, it defers the
+    signals handled by this or by Python's default SIGINT handler to the end of its chunk."""
+    raise Interrupted(signum)
+
+
+class _StopRequest:
+    """The signal received while the host driver defers them (None: none); a second one of the
+    same kind stops at once (the handlers as before, KeyboardInterrupt raised)."""
+
+    def __init__(self):
+        self.signum = None
+        self.previous = {}
+
+    def handler(self, signum, frame):
+        if self.signum is not None:
+            self.restore()
+            raise Interrupted(signum, "stopped at once by a second signal: the restart file holds its last save")
+        self.signum = signum
+
+    def restore(self):
+        for sig, h in self.previous.items():
+            signal.signal(sig, h)
+        self.previous = {}
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Within this context (on the main thread), SIGINT under Python's default handler, and SIGINT
+    or SIGTERM under `interrupt_on`, only record a stop request: the driver checks it between
+    chunks, saves and raises `Interrupted`. A KeyboardInterrupt raised at any bytecode could land
+    in a weakref callback, where Python prints it and carries on (a lost Ctrl-C), or cut a save
+    short."""
+    stop = _StopRequest()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            h = signal.getsignal(sig)
+            if h is interrupt_on or (sig == signal.SIGINT and h is signal.default_int_handler):
+                stop.previous[sig] = h
+                signal.signal(sig, stop.handler)
+    try:
+        yield stop
+    finally:
+        stop.restore()
+
+
+def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
+    """RuntimeWarning where n_out is more than the steps planned to t_end (each output interval
+    takes at least one step: the run would take n_out shorter steps, and save n_out states)."""
+    steps = _planned_steps(scene, params, state, t_end, None if dt is None else float(dt), safety=1.0)
+    if n_out > steps:
+        warnings.warn(f"{scene.name}: n_out = {n_out} exceeds the about {steps} steps of the run to t_end = {t_end:g} s: "
+                      f"each output takes at least one step, so the run takes {n_out} shorter steps and saves "
+                      f"{n_out + 1} states (allowed without this warning: n_out <= {steps})", RuntimeWarning, stacklevel=5)
+
+
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None):
+                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, restart_saved=False):
+    """The host-driven run: jitted chunks until each output time. restart_saved: `restart_file`
+    already holds this run's save (a resumed run): saves append to it from the first."""
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000))
+    if start_out == 0 and mesh is None:
+        _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt)
     run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
         checked = _checked_chunk_fn(scene, int(chunk))
@@ -399,45 +472,59 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
     n_chunks = 0
     tol = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(t_end), t_end - t0)
 
+    saved = {"any": restart_saved}
+
     def save(next_out):
         if restart_file is not None:
             from jaxmpm import restart
             restart.save(restart_file, scene, params, state, history, t0=t0, t_end=t_end, n_out=n_out,
-                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt))
+                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt), append=saved["any"])
+            saved["any"] = True
+
+    def stop_if_asked(next_out, request):
+        if request.signum is None or next_out == n_out:     # none, or the run is complete: its results
+            return
+        save(next_out)
+        where = (f"its progress is saved in {restart_file} (t = {float(state.t):.6g} s, {next_out} of {n_out} outputs)"
+                 if restart_file is not None else f"at t = {float(state.t):.6g} s, nothing saved (no restart file)")
+        raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:
-        for i_out in range(start_out, n_out):
-            t_stop = times[i_out]
-            stop = jnp.asarray(t_stop, state.t.dtype)
-            while float(state.t) < t_stop - tol:
-                t_before = float(state.t)
-                state = run(params, state, stop, dt)
-                n_chunks += 1
-                healthy, dt_cfl = health(params, state)
-                if not bool(healthy):
-                    here = state
-                    if mesh is not None:
-                        from jaxmpm.distributed import from_shards, mesh_size
-                        here = from_shards(scene, state, mesh_size(mesh))
-                    msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
-                    raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
-                                             "debug=True, or jaxmpm run --debug, names the step where it happened)")
-                if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
-                    raise FloatingPointError(
-                        f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
-                        f"{float(dt_cfl):.6g} s at t = {float(state.t):.6g} s "
-                        f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
-                if not float(state.t) > t_before:
-                    raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
-                                             f"(dt = 0: a wave speed is non-finite or infinite)")
-                if bar is not None:
-                    bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
-                if restart_every and n_chunks % restart_every == 0:
-                    save(i_out)
-            history.append(state)
-            save(i_out + 1)
+        with _signals_deferred() as request:
+            for i_out in range(start_out, n_out):
+                t_stop = times[i_out]
+                stop = jnp.asarray(t_stop, state.t.dtype)
+                while float(state.t) < t_stop - tol:
+                    t_before = float(state.t)
+                    state = run(params, state, stop, dt)
+                    n_chunks += 1
+                    healthy, dt_cfl = health(params, state)
+                    if not bool(healthy):
+                        here = state
+                        if mesh is not None:
+                            from jaxmpm.distributed import from_shards, mesh_size
+                            here = from_shards(scene, state, mesh_size(mesh))
+                        msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
+                        raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
+                                                 "debug=True, or jaxmpm run --debug, names the step where it happened)")
+                    if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
+                        raise FloatingPointError(
+                            f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
+                            f"{float(dt_cfl):.6g} s at t = {float(state.t):.6g} s "
+                            f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
+                    if not float(state.t) > t_before:
+                        raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
+                                                 f"(dt = 0: a wave speed is non-finite or infinite)")
+                    if bar is not None:
+                        bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
+                    if restart_every and n_chunks % restart_every == 0:
+                        save(i_out)
+                    stop_if_asked(i_out, request)
+                history.append(state)
+                save(i_out + 1)
+                stop_if_asked(i_out + 1, request)
     finally:
         if bar is not None:
             bar.close()
