@@ -7,7 +7,8 @@ first save writes it to a temporary name and renames it (a run killed mid-write 
 file intact); its later saves (`save(..., append=True)`) add the outputs finished since and
 overwrite the state in place, so a save costs what is new, not the whole history again. The host
 driver defers SIGINT (and, under `jaxmpm run`, SIGTERM) while it runs, so a save is never cut
-short by them.
+short by them; SIGKILL or a power cut during one of these in-place saves (milliseconds) can leave
+the file unreadable, as HDF5 writes are not transactions.
 """
 from __future__ import annotations
 
