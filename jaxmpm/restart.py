@@ -84,7 +84,7 @@ def _append(path, state, history, next_out) -> bool:
         for k in range(done, len(history)):
             _write_tree(hist.create_group(f"{k:04d}"), history[k])
         for d, a in zip(datasets, leaves):
-            d[...] = a
+            d.write_direct(np.ascontiguousarray(a))
         f.attrs["next_out"] = next_out
         f.flush()
     return True

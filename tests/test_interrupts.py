@@ -153,3 +153,32 @@ def test_a_run_removes_the_temporary_files_killed_runs_left(tmp_path, capsys):
     assert dead.name in captured.out and old.name in captured.out
     assert "elastic_impact.h5 exists: refusing to overwrite it" in captured.err
     assert sorted(_leftovers(out)) == sorted([recent.name, live.name])
+
+
+def test_sigint_inside_simulate_stops_after_the_chunk_with_the_file_saved(tmp_path, monkeypatch):
+    """In Python: a SIGINT that arrives during a save is deferred to the end of the chunk; then the
+    run saves and raises Interrupted (a KeyboardInterrupt), and resuming gives the uninterrupted
+    run's results bit for bit."""
+    from jaxmpm.simulate import Interrupted
+
+    scene, params, s0 = _small(t_end=1.5, n_out=6)
+    full, hist_full = jaxmpm.simulate(scene, params, s0, progress=False, chunk=7)
+    path = tmp_path / "run.restart.h5"
+    real, calls = restart.save, {"n": 0}
+
+    def save_with_a_signal_inside(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            os.kill(os.getpid(), signal.SIGINT)       # handled while this save runs: deferred
+        real(*a, **k)
+
+    monkeypatch.setattr(restart, "save", save_with_a_signal_inside)
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(Interrupted, match=rf"stopped by SIGINT: its progress is saved in {path}"):
+        jaxmpm.simulate(scene, params, s0, progress=False, chunk=7, restart_file=str(path), restart_every=1)
+    assert signal.getsignal(signal.SIGINT) is handler          # the handler as before
+    assert calls["n"] == 4                                      # the save it was in, and one on stopping
+    monkeypatch.setattr(restart, "save", real)
+    _, _, final, hist = restart.resume(path, progress=False)
+    np.testing.assert_array_equal(np.asarray(final.x), np.asarray(full.x))
+    np.testing.assert_array_equal(np.asarray(hist.x), np.asarray(hist_full.x))
