@@ -393,12 +393,25 @@ def interrupt_on(signum, frame):
 
 
 class _StopRequest:
-    """The signal received while the host driver defers them (None: none); a second one of the
-    same kind stops at once (the handlers as before, KeyboardInterrupt raised)."""
+    """The signal received while the host driver defers them (signum; None: none). Between
+    `install` and `restore` (on the main thread), SIGINT under Python's default handler, and
+    SIGINT or SIGTERM under `interrupt_on`, only record it: the driver checks it between chunks,
+    saves and raises `Interrupted`. (A KeyboardInterrupt raised at any bytecode could land in a
+    weakref callback, where Python prints it and carries on: a lost Ctrl-C; or cut a save short.)
+    A second signal stops at once: the handlers as before, Interrupted raised."""
 
     def __init__(self):
         self.signum = None
         self.previous = {}
+
+    def install(self):
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            h = signal.getsignal(sig)
+            if h is interrupt_on or (sig == signal.SIGINT and h is signal.default_int_handler):
+                self.previous[sig] = h
+                signal.signal(sig, self.handler)
 
     def handler(self, signum, frame):
         if self.signum is not None:
@@ -410,26 +423,6 @@ class _StopRequest:
         for sig, h in self.previous.items():
             signal.signal(sig, h)
         self.previous = {}
-
-
-@contextlib.contextmanager
-def _signals_deferred():
-    """Within this context (on the main thread), SIGINT under Python's default handler, and SIGINT
-    or SIGTERM under `interrupt_on`, only record a stop request: the driver checks it between
-    chunks, saves and raises `Interrupted`. A KeyboardInterrupt raised at any bytecode could land
-    in a weakref callback, where Python prints it and carries on (a lost Ctrl-C), or cut a save
-    short."""
-    stop = _StopRequest()
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            h = signal.getsignal(sig)
-            if h is interrupt_on or (sig == signal.SIGINT and h is signal.default_int_handler):
-                stop.previous[sig] = h
-                signal.signal(sig, stop.handler)
-    try:
-        yield stop
-    finally:
-        stop.restore()
 
 
 def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
@@ -489,43 +482,45 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                  if restart_file is not None else f"at t = {float(state.t):.6g} s, nothing saved (no restart file)")
         raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
+    request = _StopRequest()
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:
-        with _signals_deferred() as request:
-            for i_out in range(start_out, n_out):
-                t_stop = times[i_out]
-                stop = jnp.asarray(t_stop, state.t.dtype)
-                while float(state.t) < t_stop - tol:
-                    t_before = float(state.t)
-                    state = run(params, state, stop, dt)
-                    n_chunks += 1
-                    healthy, dt_cfl = health(params, state)
-                    if not bool(healthy):
-                        here = state
-                        if mesh is not None:
-                            from jaxmpm.distributed import from_shards, mesh_size
-                            here = from_shards(scene, state, mesh_size(mesh))
-                        msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
-                        raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
-                                                 "debug=True, or jaxmpm run --debug, names the step where it happened)")
-                    if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
-                        raise FloatingPointError(
-                            f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
-                            f"{float(dt_cfl):.6g} s at t = {float(state.t):.6g} s "
-                            f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
-                    if not float(state.t) > t_before:
-                        raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
-                                                 f"(dt = 0: a wave speed is non-finite or infinite)")
-                    if bar is not None:
-                        bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
-                    if restart_every and n_chunks % restart_every == 0:
-                        save(i_out)
-                    stop_if_asked(i_out, request)
-                history.append(state)
-                save(i_out + 1)
-                stop_if_asked(i_out + 1, request)
+        request.install()
+        for i_out in range(start_out, n_out):
+            t_stop = times[i_out]
+            stop = jnp.asarray(t_stop, state.t.dtype)
+            while float(state.t) < t_stop - tol:
+                t_before = float(state.t)
+                state = run(params, state, stop, dt)
+                n_chunks += 1
+                healthy, dt_cfl = health(params, state)
+                if not bool(healthy):
+                    here = state
+                    if mesh is not None:
+                        from jaxmpm.distributed import from_shards, mesh_size
+                        here = from_shards(scene, state, mesh_size(mesh))
+                    msg = find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
+                    raise FloatingPointError(f"{scene.name}: {msg} (found after chunk {n_chunks} of {chunk} steps; "
+                                             "debug=True, or jaxmpm run --debug, names the step where it happened)")
+                if dt is not None and float(dt) > float(dt_cfl) * (1 + 1e-9):
+                    raise FloatingPointError(
+                        f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
+                        f"{float(dt_cfl):.6g} s at t = {float(state.t):.6g} s "
+                        f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
+                if not float(state.t) > t_before:
+                    raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
+                                             f"(dt = 0: a wave speed is non-finite or infinite)")
+                if bar is not None:
+                    bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
+                if restart_every and n_chunks % restart_every == 0:
+                    save(i_out)
+                stop_if_asked(i_out, request)
+            history.append(state)
+            save(i_out + 1)
+            stop_if_asked(i_out + 1, request)
     finally:
+        request.restore()
         if bar is not None:
             bar.close()
     return state, _stack(history)
