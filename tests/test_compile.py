@@ -16,6 +16,8 @@ def _form_value(x):
     return x * (2.0 if native_reductions() else 3.0)
 
 
+@pytest.mark.skipif(not jaxmpm.compile._USER_CONTEXTS, reason="a jax without user contexts: jit compiles with "
+                    "XLA's defaults and traces no reduction form")
 def test_caches_of_traces_tell_the_two_forms_apart():
     """A trace made in one form is never reused in the other: not by one jax.jit, nor by the
     caches JAX keys on the traced function (jax.checkpoint's), nor by jaxmpm.jit's staged call."""
