@@ -14,15 +14,19 @@ times and energy against time: `--plot-field`), and
 `--resume DIR` finishes an interrupted run; it refuses, before simulating, to overwrite any of
 them without --overwrite. Bad input (an unknown
 scene or key, a value out of range, an existing output) prints `error: <message>` to stderr and
-exits with status 2; a run that becomes non-finite exits with status 1.
+exits with status 2; a run that becomes non-finite exits with status 1. Ctrl-C (SIGINT) or SIGTERM
+stops a run after its current chunk with its restart file saved (exit status 130 or 143); a second
+one stops it at once.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -128,6 +132,42 @@ def _new_folders(out: Path) -> list[Path]:
     return new
 
 
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """SIGTERM handled as Ctrl-C during `run` (on the main thread): the run stops after its chunk
+    with its restart file saved, and `finally` blocks delete temporary files."""
+    import signal
+
+    from jaxmpm.simulate import interrupt_on
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt_on)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _stopped(e: KeyboardInterrupt, what: str) -> int:
+    """Print `what` after the signal that stopped the run; its exit status (128 + the signal)."""
+    import signal
+
+    signum = getattr(e, "signum", signal.SIGINT)
+    print(f"\n{'interrupted' if signum == signal.SIGINT else 'terminated'}: {what}", file=sys.stderr)
+    return 128 + int(signum)
+
+
+def _remove_stale_temporaries(out: Path) -> None:
+    from jaxmpm.files import remove_stale_temporaries
+
+    gone = remove_stale_temporaries(out)
+    if gone:
+        print(f"removed {len(gone)} temporary file{'s' if len(gone) > 1 else ''} that earlier runs killed while "
+              f"writing left in {out}: {', '.join(gone)}", flush=True)
+
+
 def cmd_run(args) -> int:
     """`jaxmpm run`; a run that stops (an error, Ctrl-C) before writing anything removes the folders
     it created for --out, so a refused run leaves nothing behind."""
@@ -140,7 +180,8 @@ def cmd_run(args) -> int:
                 folder.rmdir()
 
     try:
-        code = _run(args)
+        with _sigterm_interrupts():
+            code = _run(args)
     except BaseException:
         remove_empty()
         raise
@@ -188,6 +229,7 @@ def _run(args) -> int:
         raise FileExistsError(f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
                               f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
                               "(which discards it)")
+    _remove_stale_temporaries(out)
     io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
     if args.resume:
@@ -195,10 +237,8 @@ def _run(args) -> int:
         try:
             scene, params, final, history = restart.resume(path, progress=not args.no_progress,
                                                            restart_every=args.restart_every)
-        except KeyboardInterrupt:
-            print(f"\ninterrupted: {path} holds the progress it saved last: continue with "
-                  f"`jaxmpm run --resume {path}`", file=sys.stderr)
-            return 130
+        except KeyboardInterrupt as e:
+            return _stopped(e, f"{path} holds the progress it saved last: continue with `jaxmpm run --resume {path}`")
         start = diagnostics.summary(scene, params, jax.tree.map(lambda a: None if a is None else a[0], history))
     else:
         t_end = scene.t_end if args.t_end is None else args.t_end
@@ -221,11 +261,9 @@ def _run(args) -> int:
                                              restart_every=args.restart_every or 1, debug=args.debug,
                                              overwrite=args.overwrite, yes=args.yes, max_minutes=args.max_minutes,
                                              announce=lambda line: print(line, flush=True))
-        except KeyboardInterrupt:
-            saved = (f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
-                     if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
-            print(f"\ninterrupted: {saved}", file=sys.stderr)
-            return 130
+        except KeyboardInterrupt as e:
+            return _stopped(e, f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
+                            if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
         except FloatingPointError as e:
             if args.restart_every and rfile.is_file():
                 e.args = (f"{e}\n{rfile} holds the last state saved before the failure: resuming it meets the same "
@@ -426,6 +464,8 @@ def main(argv=None) -> int:
     except FloatingPointError as e:
         print(f"error: the run failed: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt as e:      # outside the run's loop (planning, compiling, writing the outputs)
+        return _stopped(e, "the command did not finish (outputs are written whole or not at all)")
 
 
 if __name__ == "__main__":

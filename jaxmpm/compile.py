@@ -26,7 +26,17 @@ import jax
 import numpy as np
 
 CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}   # empty: no YNNPACK fusions
-_NATIVE_REDUCTIONS = contextvars.ContextVar("jaxmpm_native_reductions", default=False)
+# Which forms code traced now takes. A JAX user context: JAX keys its caches of traces, lowerings
+# and executables on it (jit's, and those of checkpoint, custom_jvp, scan, keyed by function), so a
+# trace made in one form is never reused in the other. With a plain context variable a reduction
+# form traced inside `jit` (say, the step under jax.checkpoint) came back from those caches into a
+# later eager jax.grad, compiled without CPU_OPTIONS, where YNNPACK's fusion of it crashes the
+# process (a segmentation fault in the README's gradient example).
+# A jax without user contexts compiles with XLA's defaults (`compiler_options`), so that no
+# reduction form is ever traced for `jit`; native_reductions_forms then sets a context variable.
+_USER_CONTEXTS = hasattr(jax, "make_user_context")
+_NATIVE_REDUCTIONS = (jax.make_user_context(False) if _USER_CONTEXTS
+                      else contextvars.ContextVar("jaxmpm_native_reductions", default=False))
 
 
 def native_reductions() -> bool:
@@ -35,13 +45,17 @@ def native_reductions() -> bool:
     reduction (`jnp.sum` over a broadcast product, whose reverse mode is a broadcast) is the one
     to use then; elsewhere YNNPACK takes the reductions and is slow for these shapes, and unrolled
     sums of slices are used (their reverse mode is a padded copy per slice)."""
-    return _NATIVE_REDUCTIONS.get()
+    return bool(_NATIVE_REDUCTIONS.value if _USER_CONTEXTS else _NATIVE_REDUCTIONS.get())
 
 
 @contextlib.contextmanager
 def native_reductions_forms(on: bool = True):
     """Within this context, code traced takes the forms of `native_reductions() == on`."""
-    token = _NATIVE_REDUCTIONS.set(on)
+    if _USER_CONTEXTS:
+        with _NATIVE_REDUCTIONS(bool(on)):
+            yield
+        return
+    token = _NATIVE_REDUCTIONS.set(bool(on))
     try:
         yield
     finally:
@@ -82,8 +96,9 @@ def bilinear_contraction(unrolled, reduced):
 @functools.lru_cache(maxsize=1)
 def compiler_options() -> dict | None:
     """The options jaxmpm compiles with: CPU_OPTIONS, or None where this XLA does not know them
-    or the user opted out with JAXMPM_XLA_DEFAULTS=1."""
-    if os.environ.get("JAXMPM_XLA_DEFAULTS", "") == "1":
+    or the user opted out with JAXMPM_XLA_DEFAULTS=1, or this jax has no user contexts to key its
+    caches on the contraction forms (`native_reductions`)."""
+    if os.environ.get("JAXMPM_XLA_DEFAULTS", "") == "1" or not _USER_CONTEXTS:
         return None
     try:
         jax.jit(lambda x: x + 1, compiler_options=CPU_OPTIONS).lower(np.float32(0.0)).compile()

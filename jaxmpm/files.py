@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import uuid
 from pathlib import Path
 
@@ -71,12 +72,56 @@ def _make_parent(path: Path) -> None:
                       "(allowed a folder this user can create and write to)") from None
 
 
+# the temporary files of `_atomic` and `check_writable`: .<name>.<pid>-<12 hex>.tmp (or, written by
+# earlier versions, .<name>.<12 hex>.tmp) and .jaxmpm-write-probe.<12 hex>
+_TEMPORARY = re.compile(r"^\.(?:.+\.(?:(?P<pid>\d+)-)?[0-9a-f]{12}\.tmp|jaxmpm-write-probe\.[0-9a-f]{12})$")
+_UNOWNED_AGE = 600.0       # s: a temporary file that names no process is stale after this long
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:             # exists, owned by another user
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder) -> list[str]:
+    """Delete the temporary files that killed runs left in `folder` (a run killed while it wrote a
+    file: SIGKILL, a power cut): those whose process is gone, and those naming no process that are
+    older than _UNOWNED_AGE. Returns the names deleted (empty where none, or no such folder)."""
+    import time
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    gone = []
+    for p in sorted(folder.iterdir()):
+        m = _TEMPORARY.match(p.name)
+        if not m or not p.is_file() or p.is_symlink():
+            continue
+        pid = m.group("pid")
+        if pid is not None and (int(pid) == os.getpid() or _alive(int(pid))):
+            continue
+        try:
+            if pid is None and time.time() - p.stat().st_mtime < _UNOWNED_AGE:
+                continue
+            p.unlink()
+        except FileNotFoundError:
+            continue
+        gone.append(p.name)
+    return gone
+
+
 @contextlib.contextmanager
 def _atomic(path: Path):
-    """Yield a fresh temporary name in path's directory; rename it to `path` on success, delete it
-    on error (the final name never holds a partial file)."""
+    """Yield a fresh temporary name in path's directory (naming this process, so that a later run
+    knows it stale once the process is gone: `remove_stale_temporaries`); rename it to `path` on
+    success, delete it on error (the final name never holds a partial file)."""
     _make_parent(path)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.tmp")
     try:
         yield os.fspath(tmp)
         os.replace(tmp, path)

@@ -2,9 +2,13 @@
 be resumed later, bit-identical to an uninterrupted run.
 
 A restart file (HDF5) holds the scene (TOML), every Params and State leaf, the outputs finished so
-far and the driver's settings (t0, t_end, n_out, the next output, chunk length, fixed dt). It is
-written to a temporary name and renamed, so a run killed mid-write leaves the previous restart
-file intact and readable.
+far and the driver's settings (t0, t_end, n_out, the next output, chunk length, fixed dt). A run's
+first save writes it to a temporary name and renames it (a run killed mid-write leaves any earlier
+file intact); its later saves (`save(..., append=True)`) add the outputs finished since and
+overwrite the state in place, so a save costs what is new, not the whole history again. The host
+driver defers SIGINT (and, under `jaxmpm run`, SIGTERM) while it runs, so a save is never cut
+short by them; SIGKILL or a power cut during one of these in-place saves (milliseconds) can leave
+the file unreadable, as HDF5 writes are not transactions.
 """
 from __future__ import annotations
 
@@ -58,12 +62,46 @@ def _read_tree(group, like, path, what: str):
     return jax.tree.unflatten(treedef, leaves)
 
 
-def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chunk, dt):
-    """Write the restart file at `path` atomically. history: list of finished output States; t0,
-    t_end (s): the run's start and end; n_out, next_out: its outputs and the next one due; chunk:
-    steps per chunk; dt: the fixed step (s) or None (the CFL step)."""
+def _append(path, state, history, next_out) -> bool:
+    """Bring the restart file at `path`, an earlier save of this run, up to date in place: the
+    outputs of `history` it lacks, the state (overwritten; same shapes and dtypes), next_out.
+    False, with nothing written, where the file is not such a save (missing, another layout)."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    leaves = [np.asarray(a) for a in jax.tree.leaves(state)]
+    with h5py.File(path, "r+") as f:
+        st, hist = f.get("state"), f.get("history")
+        if not (isinstance(st, h5py.Group) and isinstance(hist, h5py.Group)) or len(st) != len(leaves):
+            return False
+        done = len(hist)
+        if done > len(history) or (done and f"{done - 1:04d}" not in hist):
+            return False
+        datasets = [st.get(f"{i:04d}") for i in range(len(leaves))]
+        if not all(isinstance(d, h5py.Dataset) and d.shape == a.shape and d.dtype == a.dtype
+                   for d, a in zip(datasets, leaves)):
+            return False
+        for k in range(done, len(history)):
+            _write_tree(hist.create_group(f"{k:04d}"), history[k])
+        for d, a in zip(datasets, leaves):
+            d.write_direct(np.ascontiguousarray(a))
+        f.attrs["next_out"] = next_out
+        f.flush()
+    return True
+
+
+def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chunk, dt, append=False):
+    """Write the restart file at `path`. history: list of finished output States; t0, t_end (s):
+    the run's start and end; n_out, next_out: its outputs and the next one due; chunk: steps per
+    chunk; dt: the fixed step (s) or None (the CFL step). append=False: the whole file, written
+    atomically (a temporary name renamed). append=True: `path` is an earlier save of this same run
+    (same scene, params and driver settings, a prefix of `history`): only the outputs it lacks and
+    the state are written, in place (the whole file where `path` is not such a save)."""
     from jaxmpm import __version__
     from jaxmpm.scenefile import scene_to_toml
+
+    if append and _append(path, state, history, next_out):
+        return
 
     with _atomic(Path(path)) as tmp:
         with h5py.File(tmp, "w") as f:
@@ -229,5 +267,6 @@ def resume(path, *, progress=True, restart_every=None):
     dt = None if r["dt"] is None else jnp.asarray(r["dt"], r["state"].t.dtype)
     final, history = _host_driver(r["scene"], r["params"], r["state"], r["t_end"], r["n_out"], dt, progress, r["chunk"],
                                   t0=r["t0"], history=r["history"], start_out=r["next_out"],
-                                  restart_file=path if restart_every else None, restart_every=restart_every or 0)
+                                  restart_file=path if restart_every else None, restart_every=restart_every or 0,
+                                  restart_saved=True)
     return r["scene"], r["params"], final, history

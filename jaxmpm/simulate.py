@@ -16,7 +16,10 @@ import contextlib
 import functools
 import math
 import os
+import signal
+import threading
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -28,7 +31,7 @@ from jaxmpm.params import check_params
 from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
                              count as count, plan_steps as plan_steps, seconds)
 from jaxmpm.planning import RunPlan, acceleration_bound, compile_seconds, flight_warnings
-from jaxmpm.state import check_state, phase_slices
+from jaxmpm.state import State, check_state, check_state_dtypes, phase_slices
 from jaxmpm.tangents import evolving_tangents
 from jaxmpm.step import cfl_time_step, make_step
 
@@ -332,6 +335,8 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     chunk = None if chunk is None else count("chunk", chunk)
     checkpoint = checkpoint_mode(checkpoint, state, n_steps)
     traced = _traced((params, state))
+    if traced and isinstance(state, State):
+        check_state_dtypes(state)
     if not traced:
         check_params(scene, params)
         check_state(scene, state)
@@ -419,15 +424,79 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
 CHUNK_PARTICLE_STEPS = 20_000_000
 
 
+class Interrupted(KeyboardInterrupt):
+    """A host-driven run stopped by a signal (SIGINT, or SIGTERM where `interrupt_on` handles it)
+    after its current chunk, its restart file (if any) saved. signum: the signal's number."""
+
+    def __init__(self, signum: int, message: str = ""):
+        super().__init__(message or f"stopped by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def interrupt_on(signum, frame):
+    """A signal handler that raises `Interrupted` (a KeyboardInterrupt), so that `finally` blocks
+    clean up; `jaxmpm run` installs it for SIGTERM. While the host driver runs, it defers the
+    signals handled by this or by Python's default SIGINT handler to the end of its chunk."""
+    raise Interrupted(signum)
+
+
+class _StopRequest:
+    """The signal received while the host driver defers them (signum; None: none). Between
+    `install` and `restore` (on the main thread), SIGINT under Python's default handler, and
+    SIGINT or SIGTERM under `interrupt_on`, only record it: the driver checks it between chunks,
+    saves and raises `Interrupted`. (A KeyboardInterrupt raised at any bytecode could land in a
+    weakref callback, where Python prints it and carries on: a lost Ctrl-C; or cut a save short.)
+    A second signal stops at once: the handlers as before, Interrupted raised."""
+
+    def __init__(self):
+        self.signum = None
+        self.previous = {}
+
+    def install(self):
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            h = signal.getsignal(sig)
+            if h is interrupt_on or (sig == signal.SIGINT and h is signal.default_int_handler):
+                self.previous[sig] = h
+                signal.signal(sig, self.handler)
+
+    def handler(self, signum, frame):
+        if self.signum is not None:
+            self.restore()
+            raise Interrupted(signum, "stopped at once by a second signal: the restart file holds its last save")
+        self.signum = signum
+
+    def restore(self):
+        for sig, h in self.previous.items():
+            signal.signal(sig, h)
+        self.previous = {}
+
+
+def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
+    """RuntimeWarning where n_out is more than the steps planned to t_end (each output interval
+    takes at least one step: the run would take n_out shorter steps, and save n_out states)."""
+    steps = _planned_steps(scene, params, state, t_end, None if dt is None else float(dt), safety=1.0)
+    if n_out > steps:
+        warnings.warn(f"{scene.name}: n_out = {n_out} exceeds the about {steps} steps of the run to t_end = {t_end:g} s: "
+                      f"each output takes at least one step, so the run takes {n_out} shorter steps and saves "
+                      f"{n_out + 1} states (allowed without this warning: n_out <= {steps})", RuntimeWarning, stacklevel=5)
+
+
 def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, plan=None):
-    """The adaptive host-driven run (see the module docstring). plan: a `RunPlan` told the first
-    chunk's run time (compilation excluded), which may refuse the run before anything is saved."""
+                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, plan=None,
+                 restart_saved=False):
+    """The adaptive host-driven run: jitted chunks until each output time (see the module
+    docstring). plan: a `RunPlan` told the first chunk's run time (compilation excluded), which may
+    refuse the run before anything is saved. restart_saved: `restart_file` already holds this run's
+    save (a resumed run): saves append to it from the first."""
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
         est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000, max(10, CHUNK_PARTICLE_STEPS // max(int(np.shape(state.x)[0]), 1))))
+    if start_out == 0 and mesh is None:
+        _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt)
     run = _chunk_fn(scene, int(chunk), mesh)
     if debug:
         checked = _checked_chunk_fn(scene, int(chunk))
@@ -448,15 +517,28 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
     n_chunks = 0
     tol = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(t_end), t_end - t0)
 
+    saved = {"any": restart_saved}
+
     def save(next_out):
         if restart_file is not None:
             from jaxmpm import restart
             restart.save(restart_file, scene, params, state, history, t0=t0, t_end=t_end, n_out=n_out,
-                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt))
+                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt), append=saved["any"])
+            saved["any"] = True
 
+    def stop_if_asked(next_out, request):
+        if request.signum is None or next_out == n_out:     # none, or the run is complete: its results
+            return
+        save(next_out)
+        where = (f"its progress is saved in {restart_file} (t = {float(state.t):.6g} s, {next_out} of {n_out} outputs)"
+                 if restart_file is not None else f"at t = {float(state.t):.6g} s, nothing saved (no restart file)")
+        raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
+
+    request = _StopRequest()
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:
+        request.install()
         for i_out in range(start_out, n_out):
             t_stop = times[i_out]
             stop = jnp.asarray(t_stop, state.t.dtype)
@@ -489,9 +571,12 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                     bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
                 if restart_every and n_chunks % restart_every == 0:
                     save(i_out)
+                stop_if_asked(i_out, request)
             history.append(state)
             save(i_out + 1)
+            stop_if_asked(i_out + 1, request)
     finally:
+        request.restore()
         if bar is not None:
             bar.close()
     return state, _stack(history)

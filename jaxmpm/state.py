@@ -168,6 +168,27 @@ def stencil_offsets(dim: int, width: int) -> np.ndarray:
     return np.array(list(itertools.product(range(width), repeat=dim)), dtype=np.int32).reshape(-1, dim)
 
 
+def check_state_dtypes(state: State) -> None:
+    """ValueError naming the first field of `state` whose dtype is not float32 or float64, or not
+    the one of state.t (a step keeps each field's dtype: one dtype for all)."""
+    allowed = (np.dtype(np.float32), np.dtype(np.float64))
+    def dtype_of(a):
+        return np.dtype(a.dtype if hasattr(a, "dtype") else np.result_type(a))
+
+    t_dtype = dtype_of(state.t)
+    for name in State.__dataclass_fields__:
+        a = getattr(state, name)
+        if a is None:
+            continue
+        dt = dtype_of(a)
+        if dt not in allowed:
+            raise ValueError(f"state.{name} has dtype {dt}: allowed float32 or float64 (all fields one dtype; "
+                             "jaxmpm.init_state gives the dtype of the params)")
+        if dt != t_dtype:
+            raise ValueError(f"state.{name} has dtype {dt} and state.t {t_dtype}: allowed one dtype for all fields "
+                             "(float32 or float64)")
+
+
 def check_state(scene, state: State) -> None:
     """Raise ValueError naming the field, the particle (index and phase) and the allowed range if a
     concrete State does not fit the scene: array shapes, finite values, mass and volume > 0,
@@ -184,6 +205,7 @@ def check_state(scene, state: State) -> None:
               "energy": (n,), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
     if np.shape(state.t) != ():
         raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
+    check_state_dtypes(state)
     if scene.transfer == "apic":
         if state.C is None:
             raise ValueError("state.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, "
