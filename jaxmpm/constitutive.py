@@ -194,9 +194,9 @@ def material_volume_rate(lay, params, state, L, dt, p_amb):
     where none is present (vacuum), however the phases are grouped into velocity fields: from the
     interface forces' nodal quantities where every field holds one phase
     (`multifield.interface_force`), else from a scatter per phase
-    (`multifield.ambient_pressure_by_phase`). (Until 2026-12-03 it was formed per velocity field,
-    so phases sharing a field, as in the one-field debris cloud, relaxed toward 0 Pa even inside
-    each other: tests/test_closure.py runs the gas-filled case in one field and in two.)
+    (`multifield.ambient_pressure_by_phase`). Phases sharing a field, as in the
+    one-field debris cloud, so relax toward each other's pressure, not 0 Pa: tests/test_closure.py
+    runs the gas-filled case in one field and in two.
 
     (p_i - p_amb) / K_i is the linearised volumetric strain that brings p_i to p_amb. It is clipped
     to [-1, 1] (one e-fold of volume; our bound, not the seed's): far from the EOS's reference

@@ -266,7 +266,7 @@ def test_gradient_of_the_projectile_rear_with_respect_to_c_h_matches_differences
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in README.md (issue 7): "
+@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 7): "
                    "at steps of 0.02 and 0.005 in log C_d the differences cross "
                    "jumps of v_4 (AD -0.0126 km/s against +0.0007 and -0.056): the response to the drag is smooth "
                    "pieces about 1e-3 wide joined by particle-level switches the drag moves in time, e.g. a particle "

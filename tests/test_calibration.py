@@ -202,7 +202,7 @@ def test_ensemble_runs_again_when_its_own_plan_falls_short():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in README.md (issue 7): "
+@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 7): "
                    "at resolution 0.75 the debris front (point 1) leads the "
                    "projectile's front (point 2) by 3 m/s only (5.593, 5.590 km/s at C_h = 0.02; experiment 6.3, "
                    "6.1: 0.2 km/s); at resolution 2 point 2 leads (5.62, 5.74)")
@@ -214,7 +214,7 @@ def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in README.md (issues 7, 11): "
+@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issues 7, 11): "
                    "the coarse cloud's response to C_d is a sawtooth: smooth "
                    "pieces about 1e-3 wide in log C_d joined by jumps, so AD (the slope of a piece, which central "
                    "differences at step 1e-6 confirm: test below) and differences at steps 0.02 and 0.005 (the slope "

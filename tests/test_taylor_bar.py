@@ -135,7 +135,7 @@ def test_final_shape_converges_in_resolution():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in README.md (issue 8): "
+@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 8): "
                    "at resolution 1 the rod ends 17.18 mm long, 6.0% longer than "
                    "Johnson & Cook's measured 16.2 mm (footprint 14.57 against 13.6 mm on a frictionless wall); "
                    "without the strain-rate term (C = 0) it is 16.00 mm; with the rate on the plastic strain "

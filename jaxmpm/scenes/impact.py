@@ -65,9 +65,8 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
       resolution 1.0  (1718 particles):  5.96, 6.09, 4.87
       resolution 1.5  (3910 particles):  5.67, 5.62, 4.34
       resolution 2.0  (6868 particles):  5.62, 5.74, 4.10
-    (with the closure's ambient pressure of the other phases, E8, since 2026-12-03; formed per
-    velocity field before, it left the two phases of the one field no ambient but vacuum, and the
-    features were 5.57, 5.57, 5.10 / 5.96, 6.12, 4.88 / 5.66, 5.69, 4.33 / 5.62, 5.80, 4.11.)
+    (with the closure's ambient pressure of the other phases, E8; CHANGELOG.md has the features
+    before it.)
     The projectile's rear (point 4) converges toward the measured 3.9; the front of the debris
     (points 1 and 2) is 0.3-0.6 km/s slow. C_h barely matters with 'failed' (at resolution 1,
     C_h = 1: 5.97, 6.13, 4.87), so the seed's trend (point 4 from 3.9 to 6.1 as C_h grows) is not
