@@ -59,7 +59,7 @@ from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar      # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from outputs import add_overwrite, check_outputs   # noqa: E402  benchmarks/outputs.py
+from outputs import add_overwrite, check_outputs, check_table   # noqa: E402  benchmarks/outputs.py
 from riemann import sample   # noqa: E402  (exact Riemann solution, shared with the tests)
 from test_fluids import MARTIN_MOYCE, dam_break, front_speed   # noqa: E402  (the dam break, shared with the tests)
 
@@ -292,7 +292,9 @@ def main(argv=None):
     ap.add_argument("--replot", metavar="CSV", help="only draw the PNG of a table this script wrote")
     args = ap.parse_args(argv)
     if args.replot:
-        plot(read_rows(args.replot), Path(args.replot).with_suffix(".png"))
+        table = check_table(args.replot)
+        check_outputs(table.with_suffix(".png"), overwrite=args.overwrite)
+        plot(read_rows(table), table.with_suffix(".png"))
         return
     out = Path(args.out)
     check_outputs(out, out.with_suffix(".png"), overwrite=args.overwrite)
