@@ -286,7 +286,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--only", choices=("dam",), help="only the dam break's rows")
-    ap.add_argument("--dam-cells", default="20,40", help="the dam break's cells per column width a (comma-separated)")
+    ap.add_argument("--dam-cells", help="the dam break's cells per column width a, comma-separated (default 20,40; "
+                                        "10,20 with --quick)")
     ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
     add_overwrite(ap)
     ap.add_argument("--replot", metavar="CSV", help="only draw the PNG of a table this script wrote")
@@ -299,7 +300,8 @@ def main(argv=None):
     out = Path(args.out)
     check_outputs(out, out.with_suffix(".png"), overwrite=args.overwrite)
     rows = []
-    for spec in rows_to_run(args.quick, tuple(int(c) for c in args.dam_cells.split(",")), args.only):
+    dam_cells = args.dam_cells or ("10,20" if args.quick else "20,40")
+    for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only):
         r = measure(*spec, repeats=args.repeats)
         rows.append(r)
         print(f"{r['problem']:4s} {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: "

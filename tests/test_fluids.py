@@ -133,11 +133,11 @@ def test_dam_break_hits_the_wall_without_gaining_energy():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("cells, cfl", [(20, 0.3), (20, 0.1), (40, 0.3)])
-def test_dam_break_fine_through_the_run_up(cells, cfl):
-    """20 and 40 cells per a through the impact and the run-up to T = 8 (without the fluids'
-    artificial viscosity: +93% of m g a by T = 7 at 20 cells, float32)."""
-    _check_dam_break(*run_dam_break(dam_break(cells, 8.0, cfl), 32))
+def test_dam_break_at_20_cells_through_the_run_up():
+    """20 cells per a, CFL 0.3, through the impact and the run-up to T = 8 (measured: the energy
+    falls monotonically, -2.0e-3 m g a by T = 8; without the fluids' artificial viscosity +93% of
+    m g a by T = 7, float32)."""
+    _check_dam_break(*run_dam_break(dam_break(20, 8.0), 32))
 
 
 def _tank_run(steps):
