@@ -6,6 +6,13 @@ Problems:
         against the exact u(X, t), relative to the amplitude v0 / omega.
   sod   Sod's shock tube (rho, p = 1, 1 | 0.125, 0.1, gamma = 1.4, artificial viscosity 0.5, 2.0) at
         t = 0.2: volume-weighted L1 density error relative to the exact Riemann solution.
+  dam   the water dam break of tests/test_fluids.py (column a x 2a, a = 0.057 m, in a 5a x 5a box,
+        Tait water at c = 25 m/s, CFL 0.3) to T = t sqrt(2 g / a) = 3.6, just before the surge
+        reaches the far wall: the front Z = x / a against T beside Martin & Moyce's (1952)
+        measurements; error |front speed / measured - 1| as in the test (Z from 3.5 to 4.75 against
+        the experiment's once past the gate's opening). Rows: 'ddmp' (the default, with the fluids'
+        artificial viscosity), 'ddmp-no-av' (the default before it: artificial_viscosity (0, 0)) and
+        'bspline2-apic', at --dam-cells cells per a (20, 40 by default; 80 where affordable).
 Settings: shape function (linear MPM, DDMP, quadratic B-spline with the musl update and with APIC),
 cells, particles per cell per axis (2 or 4 on the bar; Sod has 8 per cell on the left and 1 on the
 right, equal particle masses), float32 / float64; CFL 0.1 (bar) and 0.3 (sod).
@@ -22,7 +29,8 @@ ppc, dtype, steps, particles, wall_s, error; a PNG next to it with error against
 problem and the Pareto front; printed: the front, and DDMP's error against linear MPM's at equal wall
 time (linear MPM's smallest error among its runs that took no longer than DDMP's run).
 
-Run:  python benchmarks/accuracy_vs_time.py                # both problems, about 10 minutes on 2 cores
+Run:  python benchmarks/accuracy_vs_time.py                # all problems
+      python benchmarks/accuracy_vs_time.py --only dam --dam-cells 10,20 --repeats 1 --out X.csv   # the dam break alone
       python benchmarks/accuracy_vs_time.py --quick        # fewer rows, 2 minutes
 """
 from __future__ import annotations
@@ -51,8 +59,9 @@ from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar      # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from outputs import add_overwrite, check_outputs   # noqa: E402  benchmarks/outputs.py
+from outputs import add_overwrite, check_outputs, check_table   # noqa: E402  benchmarks/outputs.py
 from riemann import sample   # noqa: E402  (exact Riemann solution, shared with the tests)
+from test_fluids import MARTIN_MOYCE, dam_break, front_speed   # noqa: E402  (the dam break, shared with the tests)
 
 C_BAR = 10.0
 BETA = math.pi / (2 * BAR_LENGTH)
@@ -100,35 +109,77 @@ def sod_error(scene, s0, final):
     return float(np.sum(V * np.abs(rho - exact)) / np.sum(V * exact))
 
 
-PROBLEMS = {"bar": (bar_scene, bar_error, PERIOD), "sod": (sod_scene, sod_error, 0.2)}
+DAM_T_END = 3.6
+DAM_SCHEMES = {"ddmp": ("ddmp", "musl", None), "ddmp-no-av": ("ddmp", "musl", (0.0, 0.0)),
+               "bspline2-apic": ("bspline2", "apic", None)}
+
+
+def dam_scene(shape, cells, ppc):
+    kind, transfer, av = DAM_SCHEMES[shape]
+    changes = dict(shape=kind, transfer=transfer, artificial_viscosity=av)
+    if kind == "bspline2":   # half a cell between the particles and the walls: the box one cell larger each way
+        base = dam_break(cells, DAM_T_END)
+        h = base.grid.h
+        changes.update(grid=Grid(cells=tuple(n + 2 for n in base.grid.cells), h=h, origin=(-h, -h)),
+                       boundary=dataclasses.replace(base.boundary, layers=2))
+    return dam_break(cells, DAM_T_END, **changes)
+
+
+def dam_error(scene, s0, final, hist=None):
+    T = np.asarray(hist.t) * math.sqrt(2 * 9.81 / 0.057)
+    Z = np.asarray(jnp.max(hist.x[..., 0], axis=-1)) / 0.057
+    late = (MARTIN_MOYCE[:, 0] >= 3.0) & (MARTIN_MOYCE[:, 0] <= 5.1)
+    measured = np.polyfit(MARTIN_MOYCE[late, 0], MARTIN_MOYCE[late, 1], 1)[0]
+    return abs(front_speed(T, Z, 3.5, 4.75) / measured - 1), (T.tolist(), Z.tolist())
+
+
+PROBLEMS = {"bar": (bar_scene, bar_error, PERIOD), "sod": (sod_scene, sod_error, 0.2),
+            "dam": (dam_scene, dam_error, None)}
 
 
 def measure(problem, shape, cells, ppc, dtype, repeats):
     build, error, t_end = PROBLEMS[problem]
     scene = build(shape, cells, ppc)
+    t_end = scene.t_end if t_end is None else t_end
+    n_out = 36 if problem == "dam" else 1
     params = jaxmpm.default_params(scene)
     s0 = initial_state(scene, params)
     if dtype == "float32":
         params, s0 = _cast(params, jnp.float32), _cast(s0, jnp.float32)
-    final, _ = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=1, progress=False)   # compiles
+    final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)   # compiles
     jax.block_until_ready(final)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        final, _ = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=1, progress=False)
+        final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)
         jax.block_until_ready(final)
         times.append(time.perf_counter() - t0)
     finite = all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(final))
-    err = error(scene, s0, final) if finite else float("nan")
+    extra = {}
+    if problem == "dam":
+        err, (T, Z) = error(scene, s0, final, hist) if finite else (float("nan"), ([], []))
+        extra = {"front_T": " ".join(f"{t:.3f}" for t in T), "front_Z": " ".join(f"{z:.4f}" for z in Z)}
+    else:
+        err = error(scene, s0, final) if finite else float("nan")
     from jaxmpm.step import cfl_time_step
 
     dt = float(cfl_time_step(scene, params, s0))                 # the first step (at the scene's CFL)
     return {"problem": problem, "shape": shape, "cells": cells, "ppc": ppc, "dtype": dtype,
             "steps": int(math.ceil(t_end / dt)), "particles": int(s0.x.shape[0]),
-            "wall_s": statistics.median(times), "error": err}
+            "wall_s": statistics.median(times), "error": err, **extra}
 
 
-def rows_to_run(quick):
+def rows_to_run(quick, dam_cells=(20, 40), only=None):
+    out = []
+    for shape in DAM_SCHEMES:
+        for cells in dam_cells:
+            out.append(("dam", shape, cells, 2, "float64"))
+    if only == "dam":
+        return out
+    return _bar_and_sod_rows(quick) + out
+
+
+def _bar_and_sod_rows(quick):
     cells_bar = [25, 50, 100, 200] if quick else [25, 50, 100, 200, 400]
     cells_sod = [100, 200, 400] if quick else [100, 200, 400, 800, 1600]
     out = []
@@ -160,17 +211,38 @@ def best_error_within(rows, t):
     return min(errs) if errs else None
 
 
+def _shape_names():
+    """Every row's scheme name, in the order that gives each its colour."""
+    return list(SHAPES) + [s for s in DAM_SCHEMES if s not in SHAPES]
+
+
+def read_rows(path):
+    """The rows of a table this script wrote (numbers back to numbers)."""
+    with open(path) as f:
+        lines = [line for line in f if not line.startswith("#")]
+    rows = list(csv.DictReader(lines))
+    for r in rows:
+        for k in ("cells", "ppc", "steps", "particles"):
+            r[k] = int(r[k])
+        for k in ("wall_s", "error"):
+            r[k] = float(r[k])
+    return rows
+
+
 def plot(rows, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     problems = sorted({r["problem"] for r in rows})
-    fig, axes = plt.subplots(1, len(problems), figsize=(6.5 * len(problems), 5), squeeze=False)
+    n_ax = len(problems) + ("dam" in problems)
+    fig, axes = plt.subplots(1, n_ax, figsize=(6.5 * n_ax, 5), squeeze=False)
     markers = {"float64": "o", "float32": "s"}
+    if "dam" in problems:
+        plot_dam_fronts(axes[0][-1], [r for r in rows if r["problem"] == "dam"])
     for ax, prob in zip(axes[0], problems):
         sub = [r for r in rows if r["problem"] == prob and math.isfinite(r["error"])]
-        for k, shape in enumerate(SHAPES):
+        for k, shape in enumerate(_shape_names()):
             for ppc in (2, 4):
                 for dt, mk in markers.items():
                     pts = sorted([r for r in sub if r["shape"] == shape and r["ppc"] == ppc and r["dtype"] == dt],
@@ -184,23 +256,52 @@ def plot(rows, path):
         ax.plot([r["wall_s"] for r in front], [r["error"] for r in front], "k:", lw=1, label="Pareto front")
         ax.set_xscale("log"); ax.set_yscale("log")
         ax.set_xlabel("wall time (s)"); ax.set_ylabel("relative error")
-        ax.set_title({"bar": "vibrating bar, v0 = 0.1 m/s, one period", "sod": "Sod shock tube, t = 0.2"}[prob])
+        ax.set_title({"bar": "vibrating bar, v0 = 0.1 m/s, one period", "sod": "Sod shock tube, t = 0.2",
+                      "dam": "dam break: |front speed / Martin & Moyce - 1|"}[prob])
         ax.legend(fontsize="x-small")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def plot_dam_fronts(ax, rows):
+    """The dam break's surge front Z = x / a against T per scheme and resolution, and Martin & Moyce's."""
+    for r in rows:
+        if not r.get("front_T"):
+            continue
+        k = _shape_names().index(r["shape"])
+        T = [float(t) for t in r["front_T"].split()]
+        Z = [float(z) for z in r["front_Z"].split()]
+        ax.plot(T, Z, color=f"C{k}", lw=0.8 + 0.5 * math.log2(r["cells"] / 10), ls="--" if "no-av" in r["shape"] else "-",
+                label=f"{r['shape']}, {r['cells']} cells per a, {r['wall_s']:.0f} s")
+    ax.plot(MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ks", label="Martin & Moyce (1952), a = 2.25 in")
+    ax.axhline(5.0, color="0.5", lw=0.5)
+    ax.set_xlim(0, DAM_T_END); ax.set_ylim(1, 5.2)
+    ax.set_xlabel("T = t sqrt(2 g / a)"); ax.set_ylabel("front Z = x / a")
+    ax.set_title("dam break: surge front (far wall at Z = 5)")
+    ax.legend(fontsize="x-small")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--only", choices=("dam",), help="only the dam break's rows")
+    ap.add_argument("--dam-cells", help="the dam break's cells per column width a, comma-separated (default 20,40; "
+                                        "10,20 with --quick)")
     ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
     add_overwrite(ap)
+    ap.add_argument("--replot", metavar="CSV", help="only draw the PNG of a table this script wrote")
     args = ap.parse_args(argv)
+    if args.replot:
+        table = check_table(args.replot)
+        check_outputs(table.with_suffix(".png"), overwrite=args.overwrite)
+        plot(read_rows(table), table.with_suffix(".png"))
+        return
     out = Path(args.out)
     check_outputs(out, out.with_suffix(".png"), overwrite=args.overwrite)
     rows = []
-    for spec in rows_to_run(args.quick):
+    dam_cells = args.dam_cells or ("10,20" if args.quick else "20,40")
+    for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only):
         r = measure(*spec, repeats=args.repeats)
         rows.append(r)
         print(f"{r['problem']:4s} {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: "
@@ -209,17 +310,21 @@ def main(argv=None):
         with open(out, "w", newline="") as f:
             f.write(f"# jaxmpm accuracy_vs_time, {datetime.date.today()}, jax {jax.__version__}, "
                     f"{jax.devices()[0].platform}, {platform.processor() or platform.machine()}\n")
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
             w.writeheader()
             w.writerows(rows)
     png = out.with_suffix(".png")
     plot(rows, png)
-    for prob in ("bar", "sod"):
+    for prob in ("bar", "sod", "dam"):
+        if not any(r["problem"] == prob for r in rows):
+            continue
         print(f"\nPareto front, {prob}:")
         for r in pareto([r for r in rows if r["problem"] == prob]):
             print(f"  {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, "
                   f"error {r['error']:.3e}")
     for prob in ("bar", "sod"):
+        if not any(r["problem"] == prob for r in rows):
+            continue
         lin = [r for r in rows if r["problem"] == prob and r["shape"] == "linear"]
         print(f"\n{prob}, DDMP against linear MPM at equal wall time (linear's best error within DDMP's time):")
         for r in sorted([r for r in rows if r["problem"] == prob and r["shape"] == "ddmp"], key=lambda r: r["wall_s"]):

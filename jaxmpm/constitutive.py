@@ -224,6 +224,12 @@ def artificial_viscosity(lay, params, state, rho_new, trD):
     return rho_new * l * (params.av_quadratic * l * comp**2 - params.av_linear * c * comp)
 
 
+def viscous_particles(lay):
+    """(N,) static bool: whether each particle's phase takes the artificial viscosity
+    (scene.viscous_phases)."""
+    return np.concatenate([np.full(sl.stop - sl.start, on, bool) for on, sl in zip(lay.scene.viscous_phases, lay.slices)])
+
+
 def constitutive(lay, params, state, L, dt, p_amb=None):
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
     model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
@@ -242,8 +248,11 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
         gate = tension_mask(lay, state) if tensile else fragmentation_gate(lay, state)
     vol = state.volume * jnp.exp(dt * rate)
     rho_new = state.mass / vol
-    q = (artificial_viscosity(lay, params, state, rho_new, jnp.trace(L_mat, axis1=1, axis2=2))
-         if scene.artificial_viscosity is not None else None)
+    q = None
+    if scene.viscosity is not None:
+        q = artificial_viscosity(lay, params, state, rho_new, jnp.trace(L_mat, axis1=1, axis2=2))
+        if not all(scene.viscous_phases):
+            q = jnp.where(jnp.asarray(viscous_particles(lay)), q, 0.0)
     work = dt * 0.5 * (vol + state.volume) / state.mass
     mp = MatPoint(state.F, state.stress, pressure(lay, state), state.energy, state.eps_ps, state.damage,
                   state.mass / state.volume, rho_new)

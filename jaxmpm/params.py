@@ -12,7 +12,7 @@
     params.c_h                            () C_h of the closure (E5: alpha = 1 - tanh(eps_ps / C_h), times the damage D
                                           with scene.fragmentation = 'failed'; eps_ps accrued in tension
                                           with 'tensile'; only with scene.c_h)
-    params.av_linear, params.av_quadratic () c_l, c_q of the artificial viscosity (only with scene.artificial_viscosity)
+    params.av_linear, params.av_quadratic () c_l, c_q of the artificial viscosity (only where scene.viscosity is not None)
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
 """
@@ -94,8 +94,8 @@ def default_params(scene, dtype=None) -> Params:
         drag_length=f(scene.drag_length if scene.drag_length is not None else scene.grid.h),
         linear_drag=f(scene.linear_drag if scene.linear_drag is not None else 0.0),
         c_h=f(scene.c_h if scene.c_h is not None else 1.0),
-        av_linear=f(scene.artificial_viscosity[0] if scene.artificial_viscosity is not None else 0.0),
-        av_quadratic=f(scene.artificial_viscosity[1] if scene.artificial_viscosity is not None else 0.0),
+        av_linear=f(scene.viscosity[0] if scene.viscosity is not None else 0.0),
+        av_quadratic=f(scene.viscosity[1] if scene.viscosity is not None else 0.0),
     )
 
 
@@ -168,8 +168,8 @@ def check_params(scene, params: Params) -> None:
     for name, off, placeholder, why in (("c_h", scene.c_h is None, 1.0, "no closure (effects.c_h)"),
                                         ("drag_length", scene.drag is None, scene.grid.h, "no drag"),
                                         ("gravity_ramp", scene.gravity is None, 0.0, "no gravity effect"),
-                                        ("av_linear", scene.artificial_viscosity is None, 0.0, "no artificial viscosity"),
-                                        ("av_quadratic", scene.artificial_viscosity is None, 0.0, "no artificial viscosity")):
+                                        ("av_linear", scene.viscosity is None, 0.0, "no artificial viscosity"),
+                                        ("av_quadratic", scene.viscosity is None, 0.0, "no artificial viscosity")):
         val = getattr(params, name)
         if off and _is_concrete(val) and not np.allclose(np.asarray(val, dtype=float), placeholder, rtol=1e-6, atol=0.0):
             unused.append(f"{name} (the scene has {why})")

@@ -158,7 +158,7 @@ CASES = [
     ("negative artificial viscosity", lambda: scene(materials=(GAS,), phases=(Phase("g", "gas", Box((0.2, 0.2), (0.6, 0.6))),),
                                                    artificial_viscosity=(-0.1, 1.0)), r"effects\.artificial_viscosity = \[-0\.1, 1\.0\] is invalid"),
     ("artificial viscosity on a total-stress model", lambda: scene(artificial_viscosity=(0.5, 2.0)),
-     r"effects\.artificial_viscosity .* only with equation-of-state models: phase 'block' uses 'hypoelastic'"),
+     r"effects\.artificial_viscosity .* only with equation-of-state models and linear_fluid: phase 'block' uses 'hypoelastic'"),
     ("unknown boundary face", lambda: Boundary(faces=(("z_top", "slip"),)), r"boundary\.z_top = 'slip' is invalid: allowed face names"),
     ("unknown boundary kind", lambda: Boundary(faces=(("x_lo", "sticky"),)), r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| fixed"),
     ("wall on an axis the grid does not have", lambda: scene(boundary=Boundary(faces=(("z_lo", "fixed"),))),

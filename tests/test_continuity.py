@@ -24,12 +24,15 @@ G = 9.81
 # ------------------------------------------------------------------ settling column
 def settling_column(continuity, cells=40, drag=1.0):
     """Water (0 - 0.5 m) under air (0.5 - 1 m) in a closed 1D box with gravity, two fields coupled
-    by C_d = 1, both at the same uniform pressure at the start (not hydrostatic)."""
+    by C_d = 1, both at the same uniform pressure at the start (not hydrostatic). Without the
+    fluids' default artificial viscosity (0, 0): the tests measure how well the continuity form
+    keeps the energy, which the viscosity would damp (with it the column's largest speed after
+    20,000 steps is 0.096 m/s, layering and Theta unchanged)."""
     walls = jaxmpm.Boundary(faces=(("x_lo", "fixed"), ("x_hi", "fixed")))
     return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), boundary=walls, gravity=(-G,),
                  phases=(Phase("water", "water", Box((0.0,), (0.5,)), field=0),
                          Phase("air", "air", Box((0.5,), (1.0,)), field=1)),
-                 drag=drag, continuity=continuity)
+                 drag=drag, continuity=continuity, artificial_viscosity=(0.0, 0.0))
 
 
 def run_column(scene, steps, chunks):

@@ -85,6 +85,8 @@ def _total_stress(fn):
 
     def update(c, mp, L, D, dt, work, q, alpha_of):
         F, sig = fn(c, mp.F, mp.stress, L, dt)
+        if q is not None:   # artificial viscosity: nonzero only for linear_fluid here (scene.viscous_phases), whose stress is recomputed from F
+            sig = sig - q[..., None, None] * jnp.eye(sig.shape[-1], dtype=sig.dtype)
         p = -jnp.trace(sig, axis1=-2, axis2=-1) / L.shape[-1]
         return mp._replace(F=F, stress=sig, pressure=p, energy=elastic.total_stress_energy(mp, sig, p, D, work, alpha_of))
 

@@ -1,0 +1,193 @@
+"""Free-surface water with the default scheme (DDMP, 'musl'): a collapsing water column hitting a
+wall, water at rest in a tank, the peers' mpm88 fluid.
+
+The dam break: the classic water column of Martin & Moyce (1952), width a = 2.25 in = 0.057 m and
+height 2a, at rest, collapsing under gravity in a closed 5a x 5a box with slip walls; Tait water
+with its sound speed lowered to 25 m/s (12x the fastest flow) so the run is short. Reference: the
+surge front Z = x / a against T = t sqrt(2 g / a) of their Fig. 3 for n^2 = 2, a = 2.25 in
+(J. C. Martin and W. J. Moyce, Phil. Trans. R. Soc. Lond. A 244 (1952) 312-324, Part IV), as
+digitised in PySPH's examples (pypr/pysph, pysph/examples/db_exp_data.py).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmpm
+from jaxmpm import Box, Grid, Phase, Scene
+from jaxmpm.materials.library import library_material
+
+G = 9.81
+A = 0.057                      # column width, m (2.25 in)
+C_WATER = 25.0                 # lowered sound speed, m/s
+# Martin & Moyce (1952) Fig. 3, n^2 = 2, a = 2.25 in: (T, Z)
+MARTIN_MOYCE = np.array([[0.832, 1.217], [1.219, 1.474], [1.997, 2.292], [2.547, 2.995], [3.345, 4.134],
+                         [4.034, 4.944], [4.418, 5.881], [5.091, 6.980], [5.685, 7.945], [6.306, 8.966]])
+
+
+def water(c=C_WATER):
+    """Tait water (rho0 = 1000 kg/m^3, n = 7.15, p0 = 0) of sound speed c at rest."""
+    return library_material("water", "tait", tait_B=1000.0 * c**2 / 7.15, p0=0.0)
+
+
+def dam_break(cells_per_a: int, T_end: float, cfl: float = 0.3, **changes) -> Scene:
+    """The column a x 2a in a closed 5a x 5a box with slip walls, 2 x 2 particles per cell."""
+    walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
+    scene = Scene(grid=Grid(cells=(5 * cells_per_a, 5 * cells_per_a), h=A / cells_per_a), materials=(water(),),
+                  phases=(Phase("water", "water", Box((0.0, 0.0), (A, 2 * A)), ppc=2),), boundary=walls,
+                  gravity=(0.0, -G), t_end=T_end / math.sqrt(2 * G / A), cfl=cfl, name="dam_break")
+    return dataclasses.replace(scene, **changes)
+
+
+def run_dam_break(scene, n_out):
+    """-> (T (n_out + 1,), energy change / (m g a), front Z = max x / a, max speed / free-fall speed
+    from the column's top sqrt(2 g 2a))."""
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    _, hist = jaxmpm.simulate(scene, params, s0, n_out=n_out, progress=False)
+    mga = float(jnp.sum(s0.mass)) * G * A
+    energy = jax.vmap(lambda s: jaxmpm.diagnostics.total_energy(scene, params, s))(hist)
+    T = np.asarray(hist.t) * math.sqrt(2 * G / A)
+    dE = (np.asarray(energy) - float(energy[0])) / mga
+    Z = np.asarray(jnp.max(hist.x[..., 0], axis=-1)) / A
+    vmax = np.asarray(jnp.max(jnp.linalg.norm(hist.v, axis=-1), axis=-1)) / math.sqrt(2 * G * 2 * A)
+    return T, dE, Z, vmax
+
+
+def front_speed(T, Z, lo=3.0, hi=4.5):
+    """dZ/dT between the times the front passes Z = lo and Z = hi (linear interpolation)."""
+    def crossing(z):
+        k = int(np.argmax(Z >= z))
+        return T[k - 1] + (z - Z[k - 1]) * (T[k] - T[k - 1]) / (Z[k] - Z[k - 1])
+    return (hi - lo) / (crossing(hi) - crossing(lo))
+
+
+def tank_at_rest(cells_per_H: int = 20, H: float = 0.1) -> tuple[Scene, object, object]:
+    """Water of depth H (m) at rest in a tank 2H wide with slip walls, under gravity, started from
+    the hydrostatic state: p = rho0 g (H - y) and the Tait density of that pressure.
+    -> (scene, params, initial state)."""
+    walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
+    h = H / cells_per_H
+    scene = Scene(grid=Grid(cells=(2 * cells_per_H, cells_per_H + 4), h=h), materials=(water(),),
+                  phases=(Phase("water", "water", Box((0.0, 0.0), (2 * H, H)), ppc=2),), boundary=walls,
+                  gravity=(0.0, -G), cfl=0.3, name="tank")
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    c = params.phases["water"]
+    p = c["rho0"] * G * (H - s0.x[:, 1])
+    rho = c["rho0"] * (1 + p / c["tait_B"]) ** (1 / c["tait_n"])           # Tait with p0 = 0
+    d = scene.dim
+    s0 = dataclasses.replace(s0, volume=s0.mass / rho, pressure=p, stress=-p[:, None, None] * jnp.eye(d, dtype=p.dtype),
+                             F=jnp.broadcast_to(jnp.eye(d, dtype=p.dtype) * (c["rho0"] / rho)[:, None, None] ** (1 / d),
+                                                s0.F.shape))
+    return scene, params, s0
+
+
+def tank_errors(scene, s0, s, H=0.1):
+    """-> (max speed / sqrt(g H), largest error of the band-averaged interior pressure against
+    rho0 g (H - y) / (rho0 g H), the particle scatter (std) of p - rho0 g (H - y) / (rho0 g H)).
+    Interior: two cells from the walls and the free surface; bands one cell high."""
+    h = scene.grid.h
+    rho_gH = 1000.0 * G * H
+    x, p = np.asarray(s.x), np.asarray(s.pressure)
+    y0 = np.asarray(s0.x[:, 1])
+    inner = (x[:, 0] > 2 * h) & (x[:, 0] < 2 * H - 2 * h) & (y0 > 2 * h) & (y0 < H - 2 * h)
+    dev = (p - 1000.0 * G * (H - y0))[inner] / rho_gH
+    bands = np.floor(y0[inner] / h).astype(int)
+    band_err = max(abs(dev[bands == b].mean()) for b in np.unique(bands))
+    speed = float(jnp.max(jnp.linalg.norm(s.v, axis=-1))) / math.sqrt(G * H)
+    return speed, band_err, float(dev.std())
+
+
+def _check_dam_break(T, dE, Z, vmax):
+    assert np.all(np.isfinite(dE))
+    # the collapse, the impact on the far wall (T ~ 3.8) and the run-up only lose energy
+    assert dE.max() < 1e-3, f"energy rose by {dE.max():.2e} m g a (at T = {T[np.argmax(dE)]:.2f})"
+    # no runaway particle: the thin jet the impact sends up the wall peaks at 2.2x (10 cells) and 2.6x
+    # (20 cells) the free-fall speed from the column's top around T = 4, then falls below 2x by T = 4.5;
+    # without the fluids' artificial viscosity particles reached 44x (20 cells, float32)
+    assert vmax.max() < 3.0, f"a particle at {vmax.max():.2f} x the free-fall speed from the column's top"
+    assert vmax[T >= 5.0].max() < 2.0
+    # the surge front: its speed before the wall (Z from 3.5 to 4.75) against the experiment's once past
+    # the gate's opening (3 <= T <= 5.1, dZ/dT = 1.67: the experiment's front starts late and accelerates
+    # while the gate is drawn, so its positions trail a column released at once by ~10% early on).
+    # Within 10%: the experiment's smaller column (a = 1.125 in) gives 1.27 over the same range, so the
+    # measurement itself spreads by 30% (measured here: -6.0% at 10 cells, -6.8% at 20 cells)
+    late = (MARTIN_MOYCE[:, 0] >= 3.0) & (MARTIN_MOYCE[:, 0] <= 5.1)
+    measured = np.polyfit(MARTIN_MOYCE[late, 0], MARTIN_MOYCE[late, 1], 1)[0]
+    speed = front_speed(T, Z, 3.5, 4.75)
+    assert abs(speed / measured - 1) < 0.1, (speed, measured)
+    assert Z[-1] > 4.9                                               # the surge reached the far wall
+
+
+def test_dam_break_hits_the_wall_without_gaining_energy():
+    """10 cells per a, CFL 0.3, through the impact to T = 5: the energy never rises (with no
+    artificial viscosity, the default before fluids had one, it rose 0.5% of m g a by T = 5, 1.7% by
+    T = 6 and without bound after), and the surge front moves at the measured speed."""
+    _check_dam_break(*run_dam_break(dam_break(10, 5.0), 20))
+
+
+@pytest.mark.slow
+def test_dam_break_at_20_cells_through_the_run_up():
+    """20 cells per a, CFL 0.3, through the impact and the run-up to T = 8 (measured: the energy
+    falls monotonically, -2.0e-3 m g a by T = 8; without the fluids' artificial viscosity +93% of
+    m g a by T = 7, float32)."""
+    _check_dam_break(*run_dam_break(dam_break(20, 8.0), 32))
+
+
+def _tank_run(steps):
+    scene, params, s0 = tank_at_rest(20)
+    step = jax.jit(jaxmpm.make_step(scene))
+    s = jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s0)
+    return tank_errors(scene, s0, s)
+
+
+@pytest.mark.parametrize("steps", [pytest.param(10_000, marks=pytest.mark.slow), 2_000])
+def test_water_at_rest_in_a_tank_stays_hydrostatic(steps):
+    """Water 0.1 m deep, 20 cells, from the hydrostatic state: largest speed below 1e-3 sqrt(g H),
+    the interior pressure within 1% of rho g (H - y) band by band and its particle scatter below
+    10% of rho g H."""
+    speed, band, scatter = _tank_run(steps)
+    assert speed < 1e-3
+    assert band < 1e-2
+    assert scatter < 0.1
+
+
+def mpm88_run(shape):
+    """The peers' mpm88 (float32, 128^2) with `shape` and the default 'musl' update at the peers'
+    step 2e-4 s for benchmarks/throughput.py's whole run (2000 steps, t = 0.4 s). -> (finite,
+    max speed m/s, relative energy change), the benchmark's stability measures."""
+    scene = dataclasses.replace(jaxmpm.load_scene("mpm88"), shape=shape, transfer="musl")
+    params = jaxmpm.default_params(scene, dtype=jnp.float32)
+    s0 = jaxmpm.init_state(scene, params)
+    step = jaxmpm.make_step(scene)
+    dt = jnp.float32(2e-4)
+    s = jax.jit(lambda s: jax.lax.fori_loop(0, 2000, lambda i, s: step(params, s, jnp.inf, dt), s))(s0)
+
+    def energy(s):
+        return float(jnp.sum(s.mass * (0.5 * jnp.sum(s.v**2, -1) - s.x @ params.gravity + s.energy)))
+
+    finite = all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(s))
+    inside = bool(((np.asarray(s.x) >= 0) & (np.asarray(s.x) <= 1)).all())
+    return finite and inside, float(jnp.max(jnp.linalg.norm(s.v, axis=-1))), (energy(s) - energy(s0)) / abs(energy(s0))
+
+
+@pytest.mark.slow
+def test_mpm88_with_linear_shapes_and_musl_is_stable_at_the_peers_step():
+    """Before the fluids' artificial viscosity this run went non-finite (benchmarks/results/throughput.csv)."""
+    finite, vmax, de = mpm88_run("linear")
+    assert finite and vmax < 10.0 and de < 0.01, (finite, vmax, de)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="known limitation (issue 49): with DDMP, splashed particles reach the "
+                   "ceiling's wall layer and the corner, are compressed to J ~ 0.5 and the run goes non-finite "
+                   "at t ~ 0.38 s, with half the step too")
+def test_mpm88_with_the_default_scheme_is_stable_at_the_peers_step():
+    finite, vmax, de = mpm88_run("ddmp")
+    assert finite and vmax < 10.0 and de < 0.01, (finite, vmax, de)
