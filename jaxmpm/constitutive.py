@@ -145,7 +145,7 @@ def per_model(lay, params, fn, *arrays):
                  for k in consts[0] if all(k in ci for ci in consts)}       # the kind's constants: every phase has them
             present = [i for i, a in enumerate(args) if a is not None]
 
-            def one(c, *xs, model=model, present=present, n_args=len(args)):
+            def one(c, *xs, model=model, present=present, n_args=len(args)):  # noqa: B008 (bound at definition)
                 full = [None] * n_args
                 for i, x in zip(present, xs):
                     full[i] = x[None]

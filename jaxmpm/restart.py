@@ -46,7 +46,7 @@ def _read_tree(group, like, path, what: str):
     flat, treedef = jax.tree_util.tree_flatten_with_path(like)
     counts = (f"{group.name} holds {len(group)} arrays, the scene in the file needs {len(flat)} "
               f"({', '.join(what + jax.tree_util.keystr(k) for k, _ in flat)})")
-    for i, (kp, leaf) in enumerate(flat):
+    for i, (kp, _leaf) in enumerate(flat):
         if not isinstance(group.get(f"{i:04d}"), h5py.Dataset):
             raise _incomplete(path, f"it has no dataset {group.name}/{i:04d} ({what + jax.tree_util.keystr(kp)}): {counts}")
     if len(group) != len(flat):

@@ -384,7 +384,7 @@ def apic_update(lay, params, state, dt):
              mass and momentum, one gather of N x 3^d nodal velocities (`transfer.scatter`,
              `transfer.gather` on a `shapes.Stencil`)."""
     scene = lay.scene
-    d, h = lay.dim, scene.grid.h
+    h = scene.grid.h
     dinv = 4.0 / h**2
     m_min = _mass_floor(lay, state)
     one_pass = transfer_form() == "gpu"

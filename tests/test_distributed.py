@@ -8,7 +8,6 @@ import subprocess
 import sys
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -212,7 +211,7 @@ def test_two_processes_give_the_one_process_results(tmp_path):
     finally:
         for p in procs:
             p.kill()
-    for p, (o, e) in zip(procs, logs):
+    for p, (_o, e) in zip(procs, logs):
         assert p.returncode == 0, e[-3000:]
     got = np.load(out)
 

@@ -14,13 +14,13 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-import jaxmpm
-from jaxmpm import fields, shapes, transfer
-from jaxmpm.materials import library_material, model_of
-from jaxmpm.materials.hydro import eos_coefficients
-from jaxmpm.scene import Grid
+import jaxmpm  # noqa: E402 (after float64 is on)
+from jaxmpm import fields, shapes, transfer  # noqa: E402
+from jaxmpm.materials import library_material, model_of  # noqa: E402
+from jaxmpm.materials.hydro import eos_coefficients  # noqa: E402
+from jaxmpm.scene import Grid  # noqa: E402
 
-from test_material_models import drive, pulse_speed
+from test_material_models import drive, pulse_speed  # noqa: E402
 
 
 def constants(material):

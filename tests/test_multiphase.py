@@ -1,6 +1,5 @@
 """Multi-velocity multiphase: implicit exchange (E3), interface forces (E13), remap exchange (E14)."""
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp

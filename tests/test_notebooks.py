@@ -1,5 +1,4 @@
 """The notebooks run end to end at a small size (JAXMPM_NOTEBOOK_SMALL=1), so they never rot."""
-import os
 import pathlib
 
 import pytest

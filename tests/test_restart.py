@@ -1,7 +1,6 @@
 """Restart files: a resumed run is bit-identical to an uninterrupted one; an interrupted write
 leaves the previous restart file readable."""
 import dataclasses
-import os
 import warnings
 
 import h5py

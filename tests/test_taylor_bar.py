@@ -18,7 +18,6 @@ import functools
 import re
 
 import jax
-import numpy as np
 import pytest
 
 import jaxmpm

@@ -5,11 +5,9 @@ in one velocity field. One field cannot separate them, so the collision is partl
 total energy may fall, it must not rise. The 'seed' remap at the new positions creates energy at
 the contact; the default 'musl' remap does not. Momentum is exact in both.
 """
-import dataclasses
 
 import jax
 import numpy as np
-import pytest
 
 import jaxmpm
 from jaxmpm.scene import Box, Grid, Phase, Scene

@@ -8,7 +8,6 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 import jaxmpm
 from jaxmpm.scenes import initial_state

@@ -105,7 +105,7 @@ def test_a_vmapped_batch_with_and_without_fitting_fields_equals_the_whole_grid()
     assert [bool(jnp.all(ddmp.window_origin(c, window)[1])) for c in cv] == [True, False]
     batched = jax.jit(jax.vmap(lambda *a: ops(*a, window)))(nv, cv, v, p)
     for i in range(2):
-        for a, b in zip(jax.jit(lambda *a: ops(*a, None))(nv[i], cv[i], v[i], p[i]), batched):
+        for a, b in zip(jax.jit(lambda *args: ops(*args, None))(nv[i], cv[i], v[i], p[i]), batched):
             np.testing.assert_allclose(b[i], a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))
 
 
