@@ -16,6 +16,7 @@ from pathlib import Path
 
 ENV_OFF = "JAXMPM_NO_CACHE"
 ENV_DIR = "JAXMPM_CACHE_DIR"
+ENV_MIN = "JAXMPM_CACHE_MIN_COMPILE_S"
 MIN_COMPILE_S = 0.5    # programs that compile faster than this are not written (jax's default: 1 s)
 
 
@@ -48,5 +49,20 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_seconds())
     return folder
+
+
+def min_compile_seconds() -> float:
+    """Programs that compile faster than this (s) are not written: JAXMPM_CACHE_MIN_COMPILE_S, else
+    MIN_COMPILE_S. A value that is not a number >= 0 is refused naming the variable."""
+    text = os.environ.get(ENV_MIN, "").strip()
+    if not text:
+        return MIN_COMPILE_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise ValueError(f"{ENV_MIN} = {text!r} is invalid: allowed a number of seconds >= 0")
+    return value

@@ -99,11 +99,11 @@ def test_axis_holds_v_r_zero_and_a_sphere_on_a_plate_conserves_mass_and_axial_mo
 
 
 @pytest.mark.parametrize("kw, match", [
-    (dict(speed=0.0), r"speed = 0.0 is invalid: allowed a finite number > 0 \(m/s"),
+    (dict(speed=0.0), r"speed = 0.0 is invalid: allowed a finite number > 0 m/s \(the impact speed"),
     (dict(speed=-6710.0), r"speed = -6710.0 is invalid"),
     (dict(plate_thickness=0.0), r"plate_thickness = 0.0 is invalid: allowed a finite number > 0"),
-    (dict(gap=-1e-3), r"gap = -0.001 m puts the sphere into the plate: allowed >= 0"),
-    (dict(resolution=0.5), r"resolution = 0.5 gives 2.76 cells across the plate .*allowed >= 4 cells, i.e. resolution >= 0.724"),
+    (dict(gap=-1e-3), r"gap = -0.001 is invalid: allowed a finite number >= 0 m \(from the sphere to the plate's top face"),
+    (dict(resolution=0.5), r"resolution = 0.5 is invalid: allowed a finite number >= 0.724 \(4 cells across the plate\)"),
     (dict(fields=3), r"fields = 3 is invalid: allowed 1 \| 2"),
 ])
 def test_bad_debris_cloud_options(kw, match):

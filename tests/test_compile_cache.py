@@ -31,12 +31,15 @@ def _entries(folder):
 
 
 def test_a_second_run_reads_the_compiled_step_back(tmp_path):
+    """Every program is written (threshold 0 s: which programs pass the default threshold depends
+    on the machine's load, so the two runs could write different sets), and the second run reads
+    each back and writes none."""
     cache = tmp_path / "cache"
-    first = _run(tmp_path, "a", cache)
+    first = _run(tmp_path, "a", cache, **{compile_cache.ENV_MIN: "0"})
     written = _entries(cache)
     assert written, "the first run wrote nothing into the cache folder"
     assert HIT not in first
-    second = _run(tmp_path, "b", cache)
+    second = _run(tmp_path, "b", cache, **{compile_cache.ENV_MIN: "0"})
     hits = [line for line in second.splitlines() if HIT in line]
     assert len(hits) >= len(written), (written, hits)      # every program the first run wrote is read back
     assert _entries(cache) == written                       # and none compiled afresh and written
@@ -65,3 +68,9 @@ def test_cache_folder_and_switch(monkeypatch, tmp_path):
         assert compile_cache.disabled_by_environment() is off
     monkeypatch.setenv(compile_cache.ENV_OFF, "1")
     assert compile_cache.enable(tmp_path / "never") is None and not (tmp_path / "never").exists()
+    monkeypatch.setenv(compile_cache.ENV_MIN, "0.25")
+    assert compile_cache.min_compile_seconds() == 0.25
+    for bad in ("-1", "soon", "nan"):
+        monkeypatch.setenv(compile_cache.ENV_MIN, bad)
+        with pytest.raises(ValueError, match=compile_cache.ENV_MIN):
+            compile_cache.min_compile_seconds()
