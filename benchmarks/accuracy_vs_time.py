@@ -33,6 +33,7 @@ Run:  python benchmarks/accuracy_vs_time.py                # all problems
       python benchmarks/accuracy_vs_time.py --only dam --dam-cells 10,20 --repeats 1 --out X.csv   # the dam break alone
       python benchmarks/accuracy_vs_time.py --quick        # fewer rows, 2 minutes
 """
+
 from __future__ import annotations
 
 import argparse
@@ -49,19 +50,19 @@ from pathlib import Path
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import jax.numpy as jnp   # noqa: E402
-import numpy as np        # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
-import jaxmpm             # noqa: E402
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene   # noqa: E402
-from jaxmpm.scenes import initial_state                        # noqa: E402
-from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar      # noqa: E402
+import jaxmpm  # noqa: E402
+from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene  # noqa: E402
+from jaxmpm.scenes import initial_state  # noqa: E402
+from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from outputs import add_overwrite, check_outputs, check_table   # noqa: E402  benchmarks/outputs.py
-from riemann import sample   # noqa: E402  (exact Riemann solution, shared with the tests)
-from test_fluids import MARTIN_MOYCE, dam_break, front_speed   # noqa: E402  (the dam break, shared with the tests)
+from outputs import add_overwrite, check_outputs, check_table  # noqa: E402  benchmarks/outputs.py
+from riemann import sample  # noqa: E402  (exact Riemann solution, shared with the tests)
+from test_fluids import MARTIN_MOYCE, dam_break, front_speed  # noqa: E402  (the dam break, shared with the tests)
 
 C_BAR = 10.0
 BETA = math.pi / (2 * BAR_LENGTH)
@@ -69,8 +70,12 @@ OMEGA = BETA * C_BAR
 PERIOD = 2 * math.pi / OMEGA
 V0 = 0.1
 
-SHAPES = {"linear": ("linear", "musl"), "ddmp": ("ddmp", "musl"), "bspline2": ("bspline2", "musl"),
-          "bspline2-apic": ("bspline2", "apic")}
+SHAPES = {
+    "linear": ("linear", "musl"),
+    "ddmp": ("ddmp", "musl"),
+    "bspline2": ("bspline2", "musl"),
+    "bspline2-apic": ("bspline2", "apic"),
+}
 
 
 def _cast(tree, dtype):
@@ -94,11 +99,21 @@ def sod_scene(shape, cells, ppc):
     left = jaxmpm.Material.make("left", "ideal_gas", rho0=1.0, gamma=1.4, p0=1.0)
     right = jaxmpm.Material.make("right", "ideal_gas", rho0=0.125, gamma=1.4, p0=0.1)
     kind, transfer = SHAPES[shape]
-    return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), materials=(left, right), shape=kind, transfer=transfer,
-                 phases=(Phase("left", "left", Box((0.0,), (0.5,)), ppc=8),       # equal particle masses
-                         Phase("right", "right", Box((0.5,), (1.0,)), ppc=1)),
-                 artificial_viscosity=(0.5, 2.0), cfl=0.3, t_end=0.2, n_out=1,
-                 boundary=Boundary(faces=(("x_lo", "slip"), ("x_hi", "slip"))))
+    return Scene(
+        grid=Grid(cells=(cells,), h=1.0 / cells),
+        materials=(left, right),
+        shape=kind,
+        transfer=transfer,
+        phases=(
+            Phase("left", "left", Box((0.0,), (0.5,)), ppc=8),  # equal particle masses
+            Phase("right", "right", Box((0.5,), (1.0,)), ppc=1),
+        ),
+        artificial_viscosity=(0.5, 2.0),
+        cfl=0.3,
+        t_end=0.2,
+        n_out=1,
+        boundary=Boundary(faces=(("x_lo", "slip"), ("x_hi", "slip"))),
+    )
 
 
 def sod_error(scene, s0, final):
@@ -110,18 +125,23 @@ def sod_error(scene, s0, final):
 
 
 DAM_T_END = 3.6
-DAM_SCHEMES = {"ddmp": ("ddmp", "musl", None), "ddmp-no-av": ("ddmp", "musl", (0.0, 0.0)),
-               "bspline2-apic": ("bspline2", "apic", None)}
+DAM_SCHEMES = {
+    "ddmp": ("ddmp", "musl", None),
+    "ddmp-no-av": ("ddmp", "musl", (0.0, 0.0)),
+    "bspline2-apic": ("bspline2", "apic", None),
+}
 
 
 def dam_scene(shape, cells, ppc):
     kind, transfer, av = DAM_SCHEMES[shape]
     changes = dict(shape=kind, transfer=transfer, artificial_viscosity=av)
-    if kind == "bspline2":   # half a cell between the particles and the walls: the box one cell larger each way
+    if kind == "bspline2":  # half a cell between the particles and the walls: the box one cell larger each way
         base = dam_break(cells, DAM_T_END)
         h = base.grid.h
-        changes.update(grid=Grid(cells=tuple(n + 2 for n in base.grid.cells), h=h, origin=(-h, -h)),
-                       boundary=dataclasses.replace(base.boundary, layers=2))
+        changes.update(
+            grid=Grid(cells=tuple(n + 2 for n in base.grid.cells), h=h, origin=(-h, -h)),
+            boundary=dataclasses.replace(base.boundary, layers=2),
+        )
     return dam_break(cells, DAM_T_END, **changes)
 
 
@@ -133,8 +153,11 @@ def dam_error(scene, s0, final, hist=None):
     return abs(front_speed(T, Z, 3.5, 4.75) / measured - 1), (T.tolist(), Z.tolist())
 
 
-PROBLEMS = {"bar": (bar_scene, bar_error, PERIOD), "sod": (sod_scene, sod_error, 0.2),
-            "dam": (dam_scene, dam_error, None)}
+PROBLEMS = {
+    "bar": (bar_scene, bar_error, PERIOD),
+    "sod": (sod_scene, sod_error, 0.2),
+    "dam": (dam_scene, dam_error, None),
+}
 
 
 def measure(problem, shape, cells, ppc, dtype, repeats):
@@ -146,7 +169,7 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
     s0 = initial_state(scene, params)
     if dtype == "float32":
         params, s0 = _cast(params, jnp.float32), _cast(s0, jnp.float32)
-    final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)   # compiles
+    final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)  # compiles
     jax.block_until_ready(final)
     times = []
     for _ in range(repeats):
@@ -163,10 +186,19 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
         err = error(scene, s0, final) if finite else float("nan")
     from jaxmpm.step import cfl_time_step
 
-    dt = float(cfl_time_step(scene, params, s0))                 # the first step (at the scene's CFL)
-    return {"problem": problem, "shape": shape, "cells": cells, "ppc": ppc, "dtype": dtype,
-            "steps": int(math.ceil(t_end / dt)), "particles": int(s0.x.shape[0]),
-            "wall_s": statistics.median(times), "error": err, **extra}
+    dt = float(cfl_time_step(scene, params, s0))  # the first step (at the scene's CFL)
+    return {
+        "problem": problem,
+        "shape": shape,
+        "cells": cells,
+        "ppc": ppc,
+        "dtype": dtype,
+        "steps": int(math.ceil(t_end / dt)),
+        "particles": int(s0.x.shape[0]),
+        "wall_s": statistics.median(times),
+        "error": err,
+        **extra,
+    }
 
 
 def rows_to_run(quick, dam_cells=(20, 40), only=None):
@@ -200,8 +232,10 @@ def _bar_and_sod_rows(quick):
 def pareto(rows):
     """Rows not beaten in both wall time and error by another row."""
     ok = [r for r in rows if math.isfinite(r["error"])]
-    return sorted([r for r in ok if not any(o["wall_s"] <= r["wall_s"] and o["error"] < r["error"] for o in ok
-                                            if o is not r)], key=lambda r: r["wall_s"])
+    return sorted(
+        [r for r in ok if not any(o["wall_s"] <= r["wall_s"] and o["error"] < r["error"] for o in ok if o is not r)],
+        key=lambda r: r["wall_s"],
+    )
 
 
 def best_error_within(rows, t):
@@ -231,6 +265,7 @@ def read_rows(path):
 
 def plot(rows, path):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -245,21 +280,33 @@ def plot(rows, path):
         for k, shape in enumerate(_shape_names()):
             for ppc in (2, 4):
                 for dt, mk in markers.items():
-                    pts = sorted([r for r in sub if r["shape"] == shape and r["ppc"] == ppc and r["dtype"] == dt],
-                                 key=lambda r: r["cells"])
+                    pts = sorted(
+                        [r for r in sub if r["shape"] == shape and r["ppc"] == ppc and r["dtype"] == dt],
+                        key=lambda r: r["cells"],
+                    )
                     if pts:
-                        ax.plot([r["wall_s"] for r in pts], [r["error"] for r in pts], marker=mk,
-                                ls="-" if ppc == 2 and dt == "float64" else "none", color=f"C{k}",
-                                mfc="none" if ppc == 4 else None,
-                                label=f"{shape}, ppc {ppc}, {dt}")
+                        ax.plot(
+                            [r["wall_s"] for r in pts],
+                            [r["error"] for r in pts],
+                            marker=mk,
+                            ls="-" if ppc == 2 and dt == "float64" else "none",
+                            color=f"C{k}",
+                            mfc="none" if ppc == 4 else None,
+                            label=f"{shape}, ppc {ppc}, {dt}",
+                        )
         front = pareto(sub)
         ax.plot([r["wall_s"] for r in front], [r["error"] for r in front], "k:", lw=1, label="Pareto front")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time (s)")
         ax.set_ylabel("relative error")
-        ax.set_title({"bar": "vibrating bar, v0 = 0.1 m/s, one period", "sod": "Sod shock tube, t = 0.2",
-                      "dam": "dam break: |front speed / Martin & Moyce - 1|"}[prob])
+        ax.set_title(
+            {
+                "bar": "vibrating bar, v0 = 0.1 m/s, one period",
+                "sod": "Sod shock tube, t = 0.2",
+                "dam": "dam break: |front speed / Martin & Moyce - 1|",
+            }[prob]
+        )
         ax.legend(fontsize="x-small")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -273,8 +320,14 @@ def plot_dam_fronts(ax, rows):
         k = _shape_names().index(r["shape"])
         T = [float(t) for t in r["front_T"].split()]
         Z = [float(z) for z in r["front_Z"].split()]
-        ax.plot(T, Z, color=f"C{k}", lw=0.8 + 0.5 * math.log2(r["cells"] / 10), ls="--" if "no-av" in r["shape"] else "-",
-                label=f"{r['shape']}, {r['cells']} cells per a, {r['wall_s']:.0f} s")
+        ax.plot(
+            T,
+            Z,
+            color=f"C{k}",
+            lw=0.8 + 0.5 * math.log2(r["cells"] / 10),
+            ls="--" if "no-av" in r["shape"] else "-",
+            label=f"{r['shape']}, {r['cells']} cells per a, {r['wall_s']:.0f} s",
+        )
     ax.plot(MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ks", label="Martin & Moyce (1952), a = 2.25 in")
     ax.axhline(5.0, color="0.5", lw=0.5)
     ax.set_xlim(0, DAM_T_END)
@@ -290,8 +343,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--only", choices=("dam",), help="only the dam break's rows")
-    ap.add_argument("--dam-cells", help="the dam break's cells per column width a, comma-separated (default 20,40; "
-                                        "10,20 with --quick)")
+    ap.add_argument(
+        "--dam-cells",
+        help="the dam break's cells per column width a, comma-separated (default 20,40; 10,20 with --quick)",
+    )
     ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
     add_overwrite(ap)
     ap.add_argument("--replot", metavar="CSV", help="only draw the PNG of a table this script wrote")
@@ -308,12 +363,16 @@ def main(argv=None):
     for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only):
         r = measure(*spec, repeats=args.repeats)
         rows.append(r)
-        print(f"{r['problem']:4s} {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: "
-              f"{r['particles']:5d} particles, {r['steps']:6d} steps, {r['wall_s']:8.3f} s, error {r['error']:.3e}",
-              flush=True)
+        print(
+            f"{r['problem']:4s} {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: "
+            f"{r['particles']:5d} particles, {r['steps']:6d} steps, {r['wall_s']:8.3f} s, error {r['error']:.3e}",
+            flush=True,
+        )
         with open(out, "w", newline="") as f:
-            f.write(f"# jaxmpm accuracy_vs_time, {datetime.date.today()}, jax {jax.__version__}, "
-                    f"{jax.devices()[0].platform}, {platform.processor() or platform.machine()}\n")
+            f.write(
+                f"# jaxmpm accuracy_vs_time, {datetime.date.today()}, jax {jax.__version__}, "
+                f"{jax.devices()[0].platform}, {platform.processor() or platform.machine()}\n"
+            )
             w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
             w.writeheader()
             w.writerows(rows)
@@ -324,8 +383,10 @@ def main(argv=None):
             continue
         print(f"\nPareto front, {prob}:")
         for r in pareto([r for r in rows if r["problem"] == prob]):
-            print(f"  {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, "
-                  f"error {r['error']:.3e}")
+            print(
+                f"  {r['shape']:14s} cells {r['cells']:5d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, "
+                f"error {r['error']:.3e}"
+            )
     for prob in ("bar", "sod"):
         if not any(r["problem"] == prob for r in rows):
             continue
@@ -333,9 +394,13 @@ def main(argv=None):
         print(f"\n{prob}, DDMP against linear MPM at equal wall time (linear's best error within DDMP's time):")
         for r in sorted([r for r in rows if r["problem"] == prob and r["shape"] == "ddmp"], key=lambda r: r["wall_s"]):
             e_lin = best_error_within(lin, r["wall_s"])
-            ratio = "no linear run that fast" if e_lin is None else f"linear {e_lin:.3e}, ratio {e_lin / r['error']:.1f}x"
-            print(f"  ddmp cells {r['cells']:4d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, error "
-                  f"{r['error']:.3e}; {ratio}")
+            ratio = (
+                "no linear run that fast" if e_lin is None else f"linear {e_lin:.3e}, ratio {e_lin / r['error']:.1f}x"
+            )
+            print(
+                f"  ddmp cells {r['cells']:4d} ppc {r['ppc']} {r['dtype']}: {r['wall_s']:.3f} s, error "
+                f"{r['error']:.3e}; {ratio}"
+            )
     print(f"\nwrote {out} and {png}")
 
 

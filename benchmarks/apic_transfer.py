@@ -21,6 +21,7 @@ again); the table gives the fastest and the median run.
 
 Writes benchmarks/results/apic_transfer_{2d,3d}.csv (or --out).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 HERE = Path(__file__).resolve().parent
 
@@ -59,7 +60,9 @@ def stencil_apic_update(lay, params, state, dt):
     acc_p = body_acceleration(lay, params, state)
     if acc_p is not None:
         mom = mom + dt * st.w[..., None] * (m[:, None] * acc_p)[:, None, :]
-    g = scatter(st, lay.field, jnp.concatenate([st.w[..., None] * m[:, None, None], mom], -1), lay.n_fields, lay.n_nodes)
+    g = scatter(
+        st, lay.field, jnp.concatenate([st.w[..., None] * m[:, None, None], mom], -1), lay.n_fields, lay.n_nodes
+    )
     v_n = _apply_bc(lay, fields.safe_div(g[..., 1:], g[..., :1], m_min))
     vs = gather(st, lay.field, v_n)
     v = jnp.sum(st.w[..., None] * vs, 1)
@@ -113,11 +116,14 @@ def programs(dim, n_grid, steps):
     state = jaxmpm.init_state(scene, params)
     dt = 2e-4 * 128 / n_grid if dim == 2 else 2e-4 * 64 / n_grid
     lay = Layout.of(scene)
-    steppers = {"window": jaxmpm.make_step(scene),
-                "offset": lambda p, s, dt: offset_apic_update(lay, p, s, jnp.asarray(dt, s.t.dtype)),
-                "stencil": lambda p, s, dt: stencil_apic_update(lay, p, s, jnp.asarray(dt, s.t.dtype))}
+    steppers = {
+        "window": jaxmpm.make_step(scene),
+        "offset": lambda p, s, dt: offset_apic_update(lay, p, s, jnp.asarray(dt, s.t.dtype)),
+        "stencil": lambda p, s, dt: stencil_apic_update(lay, p, s, jnp.asarray(dt, s.t.dtype)),
+    }
     out = {}
     for form, step in steppers.items():
+
         def rollout(v0, params, state, step=step):
             s = dataclasses.replace(state, v=state.v + v0)
             return jax.lax.scan(lambda c, _: (step(params, c, dt=dt), None), s, None, length=steps)[0]
@@ -145,35 +151,56 @@ def main():
     n_grid = a.n_grid or (128 if a.dim == 2 else 48)
     steps = a.steps or (50 if a.dim == 2 else 10)
     progs, args, n = programs(a.dim, n_grid, steps)
-    for f in progs.values():                                  # warm up
+    for f in progs.values():  # warm up
         jax.block_until_ready(f(*args))
     times = {k: [] for k in progs}
     for _ in range(a.repeats):
         for k, f in progs.items():
-            jax.block_until_ready(f(*args))        # untimed: the first run after another program's
-            t0 = time.perf_counter()              # (whose buffers were freed) can be 2x slower
+            jax.block_until_ready(f(*args))  # untimed: the first run after another program's
+            t0 = time.perf_counter()  # (whose buffers were freed) can be 2x slower
             jax.block_until_ready(f(*args))
             times[k].append(time.perf_counter() - t0)
     rows = []
     stamp = datetime.datetime.now().isoformat(timespec="seconds")
     for (form, kind), ts in times.items():
         best, med = min(ts) / steps, statistics.median(ts) / steps
-        rows.append(dict(form=form, kind=kind, dim=a.dim, n_grid=n_grid, particles=n, steps=steps,
-                         ms_per_step_min=1e3 * best, ms_per_step_median=1e3 * med,
-                         mpart_steps_per_s=n / best / 1e6, device=describe(), cpu_count=os.cpu_count(),
-                         jax_version=jax.__version__, date=stamp))
+        rows.append(
+            dict(
+                form=form,
+                kind=kind,
+                dim=a.dim,
+                n_grid=n_grid,
+                particles=n,
+                steps=steps,
+                ms_per_step_min=1e3 * best,
+                ms_per_step_median=1e3 * med,
+                mpart_steps_per_s=n / best / 1e6,
+                device=describe(),
+                cpu_count=os.cpu_count(),
+                jax_version=jax.__version__,
+                date=stamp,
+            )
+        )
     by = {(r["form"], r["kind"]): r for r in rows}
-    print(f"APIC step, mpm88 {a.dim}D {n_grid}^{a.dim}, {n} particles, float32, {steps} steps per run, "
-          f"{a.repeats} interleaved runs")
+    print(
+        f"APIC step, mpm88 {a.dim}D {n_grid}^{a.dim}, {n} particles, float32, {steps} steps per run, "
+        f"{a.repeats} interleaved runs"
+    )
     print(f"{'form':8s} {'kind':9s} {'ms/step min':>12s} {'median':>8s} {'Mpart-steps/s':>14s}")
     for r in rows:
-        print(f"{r['form']:8s} {r['kind']:9s} {r['ms_per_step_min']:12.3f} {r['ms_per_step_median']:8.3f} "
-              f"{r['mpart_steps_per_s']:14.2f}")
+        print(
+            f"{r['form']:8s} {r['kind']:9s} {r['ms_per_step_min']:12.3f} {r['ms_per_step_median']:8.3f} "
+            f"{r['mpart_steps_per_s']:14.2f}"
+        )
     for form in ("window", "offset", "stencil"):
-        print(f"{form}: gradient / forward = {by[(form, 'gradient')]['ms_per_step_min'] / by[(form, 'forward')]['ms_per_step_min']:.2f}")
+        print(
+            f"{form}: gradient / forward = {by[(form, 'gradient')]['ms_per_step_min'] / by[(form, 'forward')]['ms_per_step_min']:.2f}"
+        )
     for kind in ("forward", "gradient"):
         for form in ("offset", "stencil"):
-            print(f"{kind}: {form} / window = {by[(form, kind)]['ms_per_step_min'] / by[('window', kind)]['ms_per_step_min']:.2f}")
+            print(
+                f"{kind}: {form} / window = {by[(form, kind)]['ms_per_step_min'] / by[('window', kind)]['ms_per_step_min']:.2f}"
+            )
     with open(out, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()

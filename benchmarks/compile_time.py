@@ -17,6 +17,7 @@ Prints a table, writes benchmarks/results/compile_time.csv.
 
     python benchmarks/compile_time.py [--steps 20] [--scenes elastic_impact,debris_cloud,...]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,7 +29,7 @@ import sys
 import tempfile
 import time
 
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 CACHES = ("off", "cold", "warm")
 DEFAULT_SCENES = "elastic_impact,taylor_bar,debris_cloud_1_field,debris_cloud"
@@ -64,24 +65,39 @@ def measure_in_this_process(name, n_steps):
 def measure(name, n_steps, cache, cache_dir):
     """The measurement in a fresh Python process (`cache`: 'off', or the persistent cache's folder)."""
     env = dict(os.environ)
-    code = ("import json, sys; sys.path.insert(0, {here!r}); import jax; "
-            "{setup}"
-            "from compile_time import measure_in_this_process; "
-            "print('RESULT', json.dumps(measure_in_this_process({name!r}, {n})))")
-    setup = "" if cache == "off" else (f"jax.config.update('jax_compilation_cache_dir', {cache_dir!r}); "
-                                       "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0); ")
-    r = subprocess.run([sys.executable, "-c", code.format(here=os.path.dirname(os.path.abspath(__file__)), setup=setup,
-                                                          name=name, n=n_steps)],
-                       capture_output=True, text=True, env=env)
+    code = (
+        "import json, sys; sys.path.insert(0, {here!r}); import jax; "
+        "{setup}"
+        "from compile_time import measure_in_this_process; "
+        "print('RESULT', json.dumps(measure_in_this_process({name!r}, {n})))"
+    )
+    setup = (
+        ""
+        if cache == "off"
+        else (
+            f"jax.config.update('jax_compilation_cache_dir', {cache_dir!r}); "
+            "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0); "
+        )
+    )
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code.format(here=os.path.dirname(os.path.abspath(__file__)), setup=setup, name=name, n=n_steps),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT ")]
     if r.returncode != 0 or not lines:
         raise RuntimeError(f"{name} ({cache}): the measuring process failed:\n{r.stderr[-3000:]}")
-    return json.loads(lines[-1][len("RESULT "):])
+    return json.loads(lines[-1][len("RESULT ") :])
 
 
 def main():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from devices import describe   # benchmarks/devices.py
+    from devices import describe  # benchmarks/devices.py
     from grad_by_scene import SCENES
 
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
@@ -99,19 +115,35 @@ def main():
     path = os.path.join(args.out, "compile_time.csv")
     check_outputs(path, overwrite=args.overwrite)
     rows = []
-    print(f"{'scene':22s} {'program':9s} {'cache':5s} {'trace s':>8s} {'compile s':>9s} {'first s':>8s} "
-          f"{'to answer s':>11s} {'run s':>7s}")
+    print(
+        f"{'scene':22s} {'program':9s} {'cache':5s} {'trace s':>8s} {'compile s':>9s} {'first s':>8s} "
+        f"{'to answer s':>11s} {'run s':>7s}"
+    )
     for name in names:
         with tempfile.TemporaryDirectory() as cache_dir:
             for cache in CACHES:
                 result = measure(name, args.steps, cache, cache_dir)
                 for program, t in result.items():
                     total = t["trace"] + t["compile"] + t["first"]
-                    rows.append(dict(scene=name, program=program, cache=cache, steps=args.steps, trace_s=t["trace"],
-                                     compile_s=t["compile"], first_call_s=t["first"], to_answer_s=total, run_s=t["run"],
-                                     device=describe()))
-                    print(f"{name:22s} {program:9s} {cache:5s} {t['trace']:8.2f} {t['compile']:9.2f} {t['first']:8.3f} "
-                          f"{total:11.2f} {t['run']:7.3f}", flush=True)
+                    rows.append(
+                        dict(
+                            scene=name,
+                            program=program,
+                            cache=cache,
+                            steps=args.steps,
+                            trace_s=t["trace"],
+                            compile_s=t["compile"],
+                            first_call_s=t["first"],
+                            to_answer_s=total,
+                            run_s=t["run"],
+                            device=describe(),
+                        )
+                    )
+                    print(
+                        f"{name:22s} {program:9s} {cache:5s} {t['trace']:8.2f} {t['compile']:9.2f} {t['first']:8.3f} "
+                        f"{total:11.2f} {t['run']:7.3f}",
+                        flush=True,
+                    )
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()

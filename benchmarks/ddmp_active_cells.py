@@ -13,6 +13,7 @@ benchmarks/results/ddmp_active_cells.csv.
 
     python benchmarks/ddmp_active_cells.py [--repeats 30]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 BOXES = (((0.40, 0.62), (0.60, 0.80)), ((0.20, 0.50), (0.80, 0.60)), ((0.20, 0.20), (0.80, 0.48)))
 
@@ -39,7 +40,7 @@ def field_masks(n, groups):
             (lo, hi) = BOXES[b]
             a = [max(int(lo[i] * n) - 1, 0) for i in range(2)]
             e = [min(int(hi[i] * n) + 1, n) for i in range(2)]
-            masks[k, a[0]:e[0], a[1]:e[1]] = True
+            masks[k, a[0] : e[0], a[1] : e[1]] = True
     return masks
 
 
@@ -60,7 +61,7 @@ def case(n, groups, seed=0):
     for k in range(K):
         cv[k][masks[k]] = grid.h**2 * rng.uniform(0.5, 1.0, masks[k].sum())
         for o in offsets:
-            nv[k, o[0]:o[0] + n, o[1]:o[1] + n] += 0.25 * cv[k]
+            nv[k, o[0] : o[0] + n, o[1] : o[1] + n] += 0.25 * cv[k]
     dg = ddmp.build(grid, jnp.asarray(nv, jnp.float32), jnp.asarray(cv, jnp.float32))
     v = jnp.asarray(rng.normal(size=(K, n + 1, n + 1, d)), jnp.float32)
     cells = [np.argwhere(masks[k]) for k in range(K)]
@@ -73,14 +74,22 @@ def case(n, groups, seed=0):
     def active_cells(v, A_active, V):
         out = []
         for k in range(K):
-            vc = v[k].reshape(-1, d)[corner_nodes[k]]                                   # (C, 2^d, d)
+            vc = v[k].reshape(-1, d)[corner_nodes[k]]  # (C, 2^d, d)
             Lc = sum(vc[:, None, i, :, None] * A_active[k][:, :, i, None, :] for i in range(2**d))  # (C, 2^d, d, d)
-            out.append(jnp.zeros(((n + 1) ** 2, d, d), v.dtype).at[corner_nodes[k].reshape(-1)].add(Lc.reshape(-1, d, d)))
+            out.append(
+                jnp.zeros(((n + 1) ** 2, d, d), v.dtype).at[corner_nodes[k].reshape(-1)].add(Lc.reshape(-1, d, d))
+            )
         L = jnp.stack(out).reshape(K, n + 1, n + 1, d, d)
         return ddmp.safe_div(L, V[..., None, None], 1e-12 * grid.h**d)
 
-    return dict(fields=K, active_fraction=float(masks.mean()), grid_args=(v, dg.A, dg.V),
-                list_args=(v, A_active, dg.V), whole_grid=whole_grid, active_cells=active_cells)
+    return dict(
+        fields=K,
+        active_fraction=float(masks.mean()),
+        grid_args=(v, dg.A, dg.V),
+        list_args=(v, A_active, dg.V),
+        whole_grid=whole_grid,
+        active_cells=active_cells,
+    )
 
 
 def main():
@@ -101,28 +110,55 @@ def main():
         for form, args in (("whole grid", c["grid_args"]), ("active cells", c["list_args"])):
             f = c["whole_grid"] if form == "whole grid" else c["active_cells"]
             for mode in ("forward", "gradient"):
-                fn = jaxmpm.jit(f if mode == "forward" else
-                                jax.grad(lambda v, A, V, f=f: jnp.sum(jnp.sin(f(v, A, V))), argnums=(0, 1)))
+                fn = jaxmpm.jit(
+                    f
+                    if mode == "forward"
+                    else jax.grad(lambda v, A, V, f=f: jnp.sum(jnp.sin(f(v, A, V))), argnums=(0, 1))
+                )
                 jax.block_until_ready(fn(*args))
-                progs.append(dict(fields=c["fields"], cells_per_field=c["active_fraction"], form=form, mode=mode,
-                                  rel_diff=diff, fn=fn, args=args, best=float("inf")))
+                progs.append(
+                    dict(
+                        fields=c["fields"],
+                        cells_per_field=c["active_fraction"],
+                        form=form,
+                        mode=mode,
+                        rel_diff=diff,
+                        fn=fn,
+                        args=args,
+                        best=float("inf"),
+                    )
+                )
     for _ in range(a.repeats):
         for p in progs:
             jax.block_until_ready(p["fn"](*p["args"]))
             t0 = time.perf_counter()
             jax.block_until_ready(p["fn"](*p["args"]))
             p["best"] = min(p["best"], time.perf_counter() - t0)
-    print(f"DDMP nodal velocity gradient, {a.n_grid}^2 grid, float32, {describe()}, {os.cpu_count()} CPUs, "
-          f"jax {jax.__version__} (fastest of {a.repeats})")
+    print(
+        f"DDMP nodal velocity gradient, {a.n_grid}^2 grid, float32, {describe()}, {os.cpu_count()} CPUs, "
+        f"jax {jax.__version__} (fastest of {a.repeats})"
+    )
     print(f"{'fields':>6} {'cells/field':>11} {'form':>12} {'mode':>8} {'ms':>8} {'rel. diff':>9}")
     rows = []
     for p in progs:
-        print(f"{p['fields']:>6} {p['cells_per_field']:>11.3f} {p['form']:>12} {p['mode']:>8} {1e3 * p['best']:>8.3f} "
-              f"{p['rel_diff']:>9.1e}")
-        rows.append(dict(fields=p["fields"], active_cell_fraction_per_field=p["cells_per_field"], form=p["form"],
-                         mode=p["mode"], ms=1e3 * p["best"], max_rel_diff_to_whole_grid=p["rel_diff"],
-                         device=describe(), cpus=os.cpu_count(), jax=jax.__version__,
-                         python=platform.python_version()))
+        print(
+            f"{p['fields']:>6} {p['cells_per_field']:>11.3f} {p['form']:>12} {p['mode']:>8} {1e3 * p['best']:>8.3f} "
+            f"{p['rel_diff']:>9.1e}"
+        )
+        rows.append(
+            dict(
+                fields=p["fields"],
+                active_cell_fraction_per_field=p["cells_per_field"],
+                form=p["form"],
+                mode=p["mode"],
+                ms=1e3 * p["best"],
+                max_rel_diff_to_whole_grid=p["rel_diff"],
+                device=describe(),
+                cpus=os.cpu_count(),
+                jax=jax.__version__,
+                python=platform.python_version(),
+            )
+        )
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -30,6 +30,7 @@ seconds) and results.tar.gz (each step's CSV, markdown and PNG under results/, a
 `python benchmarks/throughput.py --replot` redraws a table). --quick runs every step at toy sizes:
 a dry run of the script on a CPU.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -50,8 +51,7 @@ SITE = Path("/tmp/site")
 
 # the form-pair configurations of benchmarks/throughput.py, and the peers that run on a GPU
 FORM_ROWS = "jaxmpm-apic-gpuform,jaxmpm-apic-cpuform,jaxmpm-ddmp-musl-gpuform,jaxmpm-ddmp-musl-cpuform"
-FORM_TESTS = ("gpu_forms_equal and (apic-2d or ddmp-axisymmetric or two-fields-1d) "
-              "or gpu_form_has_no_loop")
+FORM_TESTS = "gpu_forms_equal and (apic-2d or ddmp-axisymmetric or two-fields-1d) or gpu_form_has_no_loop"
 
 
 def default_peers() -> str:
@@ -64,35 +64,176 @@ def steps(out: Path, quick: bool, peers: str):
     the repository's root."""
     py = sys.executable
     r = out
-    pytest = [py, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-o", "addopts=", "-m", "not slow",
-              "tests/test_transfer_forms.py", "-k"]
+    pytest = [
+        py,
+        "-m",
+        "pytest",
+        "-x",
+        "-q",
+        "-p",
+        "no:cacheprovider",
+        "-o",
+        "addopts=",
+        "-m",
+        "not slow",
+        "tests/test_transfer_forms.py",
+        "-k",
+    ]
     if quick:
         return [
             ("device", [py, "-c", DEVICE_REPORT], 60),
             ("tests", pytest + ["gpu_forms_equal and apic-1d"], 300),
-            ("throughput3", [py, "benchmarks/throughput.py", "--dim", "3", "--n-grid", "16", "--steps", "5", "--repeats", "1",
-                             "--ppc", "2", "--configs", "jaxmpm-apic-gpuform,jaxmpm-apic-cpuform,jax-naive,taichi-cuda",
-                             "--peers", peers, "--timeout", "200", "--out", str(r / "throughput_3d.csv")], 400),
-            ("throughput2", [py, "benchmarks/throughput.py", "--n-grid", "32", "--steps", "5", "--repeats", "1", "--ppc", "2",
-                             "--configs", "jaxmpm-ddmp-musl-gpuform,jax-naive,warp-cuda", "--peers", peers, "--timeout", "200",
-                             "--out", str(r / "throughput.csv")], 300),
-            ("multifield", [py, "benchmarks/multifield_cost.py", "--short", "--n-grid", "32", "--steps", "3", "--repeats", "1",
-                            "--out", str(r / "multifield_cost.csv")], 300),
-            ("kernels", [py, "benchmarks/kernel_count.py", "--schemes", "linear-musl", "--dims", "2",
-                         "--out", str(r / "kernel_count.csv")], 300),
+            (
+                "throughput3",
+                [
+                    py,
+                    "benchmarks/throughput.py",
+                    "--dim",
+                    "3",
+                    "--n-grid",
+                    "16",
+                    "--steps",
+                    "5",
+                    "--repeats",
+                    "1",
+                    "--ppc",
+                    "2",
+                    "--configs",
+                    "jaxmpm-apic-gpuform,jaxmpm-apic-cpuform,jax-naive,taichi-cuda",
+                    "--peers",
+                    peers,
+                    "--timeout",
+                    "200",
+                    "--out",
+                    str(r / "throughput_3d.csv"),
+                ],
+                400,
+            ),
+            (
+                "throughput2",
+                [
+                    py,
+                    "benchmarks/throughput.py",
+                    "--n-grid",
+                    "32",
+                    "--steps",
+                    "5",
+                    "--repeats",
+                    "1",
+                    "--ppc",
+                    "2",
+                    "--configs",
+                    "jaxmpm-ddmp-musl-gpuform,jax-naive,warp-cuda",
+                    "--peers",
+                    peers,
+                    "--timeout",
+                    "200",
+                    "--out",
+                    str(r / "throughput.csv"),
+                ],
+                300,
+            ),
+            (
+                "multifield",
+                [
+                    py,
+                    "benchmarks/multifield_cost.py",
+                    "--short",
+                    "--n-grid",
+                    "32",
+                    "--steps",
+                    "3",
+                    "--repeats",
+                    "1",
+                    "--out",
+                    str(r / "multifield_cost.csv"),
+                ],
+                300,
+            ),
+            (
+                "kernels",
+                [
+                    py,
+                    "benchmarks/kernel_count.py",
+                    "--schemes",
+                    "linear-musl",
+                    "--dims",
+                    "2",
+                    "--out",
+                    str(r / "kernel_count.csv"),
+                ],
+                300,
+            ),
             ("grad", [py, "benchmarks/grad_cost.py", "--steps", "10", "--modes", "steps", "--out", str(r)], 300),
         ]
     return [
         ("device", [py, "-c", DEVICE_REPORT], 60),
         ("tests", pytest + [FORM_TESTS], 100),
-        ("throughput3", [py, "benchmarks/throughput.py", "--dim", "3", "--n-grid", "128", "--steps", "100", "--repeats", "2",
-                         "--ppc", "2", "--configs", FORM_ROWS + ",jax-naive,taichi-cuda", "--peers", peers,
-                         "--timeout", "110", "--out", str(r / "throughput_3d_128.csv")], 260),
-        ("throughput2", [py, "benchmarks/throughput.py", "--n-grid", "512", "--steps", "200", "--repeats", "2", "--ppc", "2",
-                         "--configs", FORM_ROWS + ",jax-naive,taichi-cuda,warp-cuda", "--peers", peers, "--timeout", "60",
-                         "--out", str(r / "throughput_2d_512.csv")], 130),
-        ("multifield", [py, "benchmarks/multifield_cost.py", "--short", "--steps", "50", "--repeats", "3",
-                        "--out", str(r / "multifield_cost.csv")], 90),
+        (
+            "throughput3",
+            [
+                py,
+                "benchmarks/throughput.py",
+                "--dim",
+                "3",
+                "--n-grid",
+                "128",
+                "--steps",
+                "100",
+                "--repeats",
+                "2",
+                "--ppc",
+                "2",
+                "--configs",
+                FORM_ROWS + ",jax-naive,taichi-cuda",
+                "--peers",
+                peers,
+                "--timeout",
+                "110",
+                "--out",
+                str(r / "throughput_3d_128.csv"),
+            ],
+            260,
+        ),
+        (
+            "throughput2",
+            [
+                py,
+                "benchmarks/throughput.py",
+                "--n-grid",
+                "512",
+                "--steps",
+                "200",
+                "--repeats",
+                "2",
+                "--ppc",
+                "2",
+                "--configs",
+                FORM_ROWS + ",jax-naive,taichi-cuda,warp-cuda",
+                "--peers",
+                peers,
+                "--timeout",
+                "60",
+                "--out",
+                str(r / "throughput_2d_512.csv"),
+            ],
+            130,
+        ),
+        (
+            "multifield",
+            [
+                py,
+                "benchmarks/multifield_cost.py",
+                "--short",
+                "--steps",
+                "50",
+                "--repeats",
+                "3",
+                "--out",
+                str(r / "multifield_cost.csv"),
+            ],
+            90,
+        ),
         ("kernels", [py, "benchmarks/kernel_count.py", "--out", str(r / "kernel_count_gpu.csv")], 120),
         ("grad", [py, "benchmarks/grad_cost.py", "--steps", "100", "--modes", "steps", "--out", str(r)], 90),
     ]
@@ -123,15 +264,29 @@ def install_wheels(say) -> str | None:
     if not wheels:
         say("wheels: none in .whl (peers that need a module this python lacks are skipped)")
         return None
-    cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile", "--no-cache-dir",
-           "--upgrade", "--target", str(SITE)] + [str(w) for w in wheels]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pip",
+        "install",
+        "-q",
+        "--no-index",
+        "--no-deps",
+        "--no-compile",
+        "--no-cache-dir",
+        "--upgrade",
+        "--target",
+        str(SITE),
+    ] + [str(w) for w in wheels]
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         ok, text = p.returncode == 0, (p.stdout + p.stderr).strip()
     except subprocess.TimeoutExpired:
         ok, text = False, "timed out after 120 s"
-    say(f"wheels: {', '.join(w.name for w in wheels)}: {'installed in ' + str(SITE) if ok else 'NOT installed'}"
-        + (f"\n{text[-2000:]}" if text else ""))
+    say(
+        f"wheels: {', '.join(w.name for w in wheels)}: {'installed in ' + str(SITE) if ok else 'NOT installed'}"
+        + (f"\n{text[-2000:]}" if text else "")
+    )
     return str(SITE) if ok else None
 
 
@@ -157,12 +312,16 @@ def run_step(cmd, env, limit, log) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
-    ap.add_argument("--out", required=True, help="folder for suite.log and results.tar.gz (created; must hold no "
-                    "suite.log yet)")
+    ap.add_argument(
+        "--out", required=True, help="folder for suite.log and results.tar.gz (created; must hold no suite.log yet)"
+    )
     ap.add_argument("--budget", type=float, default=480.0, help="seconds for all steps together (default 480)")
     ap.add_argument("--quick", action="store_true", help="toy sizes: a dry run of this script")
-    ap.add_argument("--peers", default=None, help="folder of the peer scripts (default ./.whl/peers if there, else "
-                    "../shared/bench/peers)")
+    ap.add_argument(
+        "--peers",
+        default=None,
+        help="folder of the peer scripts (default ./.whl/peers if there, else ../shared/bench/peers)",
+    )
     ap.add_argument("--only", default=None, help="comma-separated step names to run (default: all)")
     a = ap.parse_args(argv)
     if a.budget <= 0:
@@ -171,7 +330,7 @@ def main(argv=None):
     if (out / "suite.log").exists():
         ap.error(f"--out {out} is invalid: it already holds a suite.log (allowed: a new or empty folder)")
     peers = a.peers or default_peers()
-    results = Path(tempfile.mkdtemp(prefix="device_suite_"))   # packed into out: a few files travel back, not many
+    results = Path(tempfile.mkdtemp(prefix="device_suite_"))  # packed into out: a few files travel back, not many
     plan = steps(results, a.quick, peers)
     if a.only:
         names = {n.strip() for n in a.only.split(",")}
@@ -182,13 +341,16 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     with open(out / "suite.log", "a") as log:
+
         def say(text):
             print(text, flush=True)
             log.write(text + "\n")
             log.flush()
 
-        say(f"device_suite: budget {a.budget:.0f} s{' (quick)' if a.quick else ''}, steps {', '.join(s[0] for s in plan)}; "
-            f"peers {peers}")
+        say(
+            f"device_suite: budget {a.budget:.0f} s{' (quick)' if a.quick else ''}, steps {', '.join(s[0] for s in plan)}; "
+            f"peers {peers}"
+        )
         site = install_wheels(say)
         paths = [str(ROOT)] + ([site] if site else []) + [p for p in [os.environ.get("PYTHONPATH")] if p]
         env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(paths))
@@ -204,7 +366,7 @@ def main(argv=None):
             t0 = time.perf_counter()
             status = run_step(cmd, env, limit, log)
             log.seek(0, os.SEEK_END)
-            with open(out / "suite.log") as f:          # the step's tail on the console too
+            with open(out / "suite.log") as f:  # the step's tail on the console too
                 f.seek(begin)
                 tail = f.read().strip().splitlines()[-30:]
             print("\n".join(tail), flush=True)

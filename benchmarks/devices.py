@@ -1,5 +1,6 @@
 """The device a benchmark ran on, named for its tables: the JAX device and, on an accelerator, its
 model (e.g. "cuda:0 (NVIDIA H200)"); on the CPU the device alone ("TFRT_CPU_0")."""
+
 from __future__ import annotations
 
 

@@ -8,6 +8,7 @@ per step is printed and written to a CSV (--out, default benchmarks/results/flui
 Run:  python benchmarks/fluid_viscosity_cost.py                 # 20 cells per a, float32 and float64
       python benchmarks/fluid_viscosity_cost.py --cells 40 --repeats 7
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,14 +22,14 @@ from pathlib import Path
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import jax.numpy as jnp   # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 
-import jaxmpm             # noqa: E402
+import jaxmpm  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from outputs import add_overwrite, check_outputs   # noqa: E402  benchmarks/outputs.py
-from test_fluids import dam_break                   # noqa: E402
+from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
+from test_fluids import dam_break  # noqa: E402
 
 CONFIGS = {"default (viscosity on fluids)": None, "artificial_viscosity (0, 0)": (0.0, 0.0)}
 
@@ -40,7 +41,9 @@ def per_step_ms(cells, dtype, steps, repeats):
         scene = dam_break(cells, 8.0, artificial_viscosity=av)
         params = jaxmpm.default_params(scene, dtype=dtype)
         step = jaxmpm.make_step(scene)
-        run = jaxmpm.jit(lambda s, params=params, step=step: jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s))
+        run = jaxmpm.jit(
+            lambda s, params=params, step=step: jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s)
+        )
         loops[name] = (run, jax.block_until_ready(run(jaxmpm.init_state(scene, params))))
     times = {name: [] for name in CONFIGS}
     for _ in range(repeats):
@@ -66,13 +69,25 @@ def main(argv=None):
         times = per_step_ms(args.cells, dtype, args.steps, args.repeats)
         base = statistics.median(times["artificial_viscosity (0, 0)"])
         for name, t in times.items():
-            rows.append({"cells_per_a": args.cells, "dtype": jnp.dtype(dtype).name, "config": name,
-                         "ms_per_step": statistics.median(t), "ratio_to_off": statistics.median(t) / base,
-                         "runs_ms": " ".join(f"{x:.3f}" for x in t)})
-            print(f"{rows[-1]['dtype']:8s} {name:30s} {rows[-1]['ms_per_step']:.3f} ms/step, x{rows[-1]['ratio_to_off']:.3f} "
-                  f"(runs {rows[-1]['runs_ms']})", flush=True)
+            rows.append(
+                {
+                    "cells_per_a": args.cells,
+                    "dtype": jnp.dtype(dtype).name,
+                    "config": name,
+                    "ms_per_step": statistics.median(t),
+                    "ratio_to_off": statistics.median(t) / base,
+                    "runs_ms": " ".join(f"{x:.3f}" for x in t),
+                }
+            )
+            print(
+                f"{rows[-1]['dtype']:8s} {name:30s} {rows[-1]['ms_per_step']:.3f} ms/step, x{rows[-1]['ratio_to_off']:.3f} "
+                f"(runs {rows[-1]['runs_ms']})",
+                flush=True,
+            )
     with open(out, "w", newline="") as f:
-        f.write(f"# jaxmpm fluid_viscosity_cost, {datetime.date.today()}, jax {jax.__version__}, {jax.devices()[0].platform}\n")
+        f.write(
+            f"# jaxmpm fluid_viscosity_cost, {datetime.date.today()}, jax {jax.__version__}, {jax.devices()[0].platform}\n"
+        )
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)

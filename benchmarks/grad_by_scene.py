@@ -17,6 +17,7 @@ Prints a table, writes benchmarks/results/grad_by_scene.csv.
     python benchmarks/grad_by_scene.py [--steps 20] [--rounds 7] [--scenes elastic_impact,debris_cloud,...]
                                        [--checkpoint steps,none]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,17 +29,22 @@ import time
 
 import jax
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 jax.config.update("jax_enable_x64", True)
 
 # label -> (built-in scene, its options)
-SCENES = {"elastic_impact": ("elastic_impact", {}), "vibrating_bar": ("vibrating_bar", {}),
-          "self_weight_column": ("self_weight_column", {}), "mpm88": ("mpm88", {}),
-          "debris_cloud": ("debris_cloud", dict(resolution=0.75, fields=2)),
-          "debris_cloud_1_field": ("debris_cloud", dict(resolution=0.75, fields=1)),
-          "taylor_bar": ("taylor_bar", {}), "taylor_brittle": ("taylor_brittle", {})}
+SCENES = {
+    "elastic_impact": ("elastic_impact", {}),
+    "vibrating_bar": ("vibrating_bar", {}),
+    "self_weight_column": ("self_weight_column", {}),
+    "mpm88": ("mpm88", {}),
+    "debris_cloud": ("debris_cloud", dict(resolution=0.75, fields=2)),
+    "debris_cloud_1_field": ("debris_cloud", dict(resolution=0.75, fields=1)),
+    "taylor_bar": ("taylor_bar", {}),
+    "taylor_brittle": ("taylor_brittle", {}),
+}
 
 
 def problem(name, n_steps, checkpoint="steps"):
@@ -48,6 +54,7 @@ def problem(name, n_steps, checkpoint="steps"):
 
     import jaxmpm
     from jaxmpm.step import cfl_time_step
+
     builtin, options = SCENES[name]
     scene = jaxmpm.load_scene(builtin, **options)
     params = jaxmpm.default_params(scene)
@@ -58,8 +65,17 @@ def problem(name, n_steps, checkpoint="steps"):
     weight = state.mass * jnp.linspace(0.5, 1.5, state.mass.shape[0])
 
     def loss(a):
-        final, _ = jaxmpm.simulate(scene, params, dataclasses.replace(state, v=a * state.v), t_end=t0 + n_steps * dt,
-                                   n_out=1, dt=dt, n_steps=n_steps, checkpoint=checkpoint, progress=False)
+        final, _ = jaxmpm.simulate(
+            scene,
+            params,
+            dataclasses.replace(state, v=a * state.v),
+            t_end=t0 + n_steps * dt,
+            n_out=1,
+            dt=dt,
+            n_steps=n_steps,
+            checkpoint=checkpoint,
+            progress=False,
+        )
         return jnp.sum(weight * (final.x[:, 0] + 1e-6 * final.v[:, -1])) / jnp.sum(weight)
 
     what = f"{scene.shape}, {scene.transfer}" + (", axisymmetric" if scene.axisymmetric else "")
@@ -70,6 +86,7 @@ def measure(name, n_steps, rounds, modes=("steps",)):
     """One row per checkpointing in `modes` ("steps", "nested", "none"), their programs timed
     interleaved in each round."""
     import jaxmpm
+
     progs = {}
     for mode in modes:
         loss, a, n_particles, n_fields, what = problem(name, n_steps, False if mode == "none" else mode)
@@ -88,11 +105,24 @@ def measure(name, n_steps, rounds, modes=("steps",)):
             t0 = time.perf_counter()
             jax.block_until_ready(vg(a))
             tg.append(time.perf_counter() - t0)
-    return [dict(scene=name, composition=what, fields=n_fields, particles=n_particles, steps=n_steps, checkpoint=mode,
-                 forward_ms_per_step=min(tf) / n_steps * 1e3, gradient_ms_per_step=min(tg) / n_steps * 1e3,
-                 ratio=min(tg) / min(tf), ratio_paired_median=statistics.median(g / f for f, g in zip(tf, tg)),
-                 gradient_program_mib=progs[mode][3], finite=progs[mode][2], device=describe())
-            for mode, (tf, tg) in times.items()]
+    return [
+        dict(
+            scene=name,
+            composition=what,
+            fields=n_fields,
+            particles=n_particles,
+            steps=n_steps,
+            checkpoint=mode,
+            forward_ms_per_step=min(tf) / n_steps * 1e3,
+            gradient_ms_per_step=min(tg) / n_steps * 1e3,
+            ratio=min(tg) / min(tf),
+            ratio_paired_median=statistics.median(g / f for f, g in zip(tf, tg)),
+            gradient_program_mib=progs[mode][3],
+            finite=progs[mode][2],
+            device=describe(),
+        )
+        for mode, (tf, tg) in times.items()
+    ]
 
 
 def program_mib(compiled):
@@ -106,8 +136,11 @@ def main():
     ap.add_argument("--steps", type=int, default=20, help="checkpointed steps timed (after 100 untimed)")
     ap.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
     ap.add_argument("--scenes", default=",".join(SCENES), help="comma-separated: " + " | ".join(SCENES))
-    ap.add_argument("--checkpoint", default="steps",
-                    help="comma-separated checkpointings of simulate, timed interleaved: steps | nested | none (False)")
+    ap.add_argument(
+        "--checkpoint",
+        default="steps",
+        help="comma-separated checkpointings of simulate, timed interleaved: steps | nested | none (False)",
+    )
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     add_overwrite(ap)
     args = ap.parse_args()
@@ -121,14 +154,19 @@ def main():
     if bad or not modes:
         ap.error(f"--checkpoint: unknown {bad}; allowed: steps, nested, none")
     rows = []
-    print(f"{'scene':24s} {'composition':30s} {'K':>2s} {'particles':>9s} {'checkpoint':>10s} {'fwd ms/step':>11s} "
-          f"{'grad ms/step':>12s} {'grad MiB':>9s}  ratio (paired median)")
+    print(
+        f"{'scene':24s} {'composition':30s} {'K':>2s} {'particles':>9s} {'checkpoint':>10s} {'fwd ms/step':>11s} "
+        f"{'grad ms/step':>12s} {'grad MiB':>9s}  ratio (paired median)"
+    )
     for name in names:
         for r in measure(name, args.steps, args.rounds, modes):
             rows.append(r)
-            print(f"{name:24s} {r['composition']:30s} {r['fields']:2d} {r['particles']:9d} {r['checkpoint']:>10s} "
-                  f"{r['forward_ms_per_step']:11.3f} {r['gradient_ms_per_step']:12.3f} {r['gradient_program_mib']:9.1f}  "
-                  f"{r['ratio']:.2f} ({r['ratio_paired_median']:.2f})", flush=True)
+            print(
+                f"{name:24s} {r['composition']:30s} {r['fields']:2d} {r['particles']:9d} {r['checkpoint']:>10s} "
+                f"{r['forward_ms_per_step']:11.3f} {r['gradient_ms_per_step']:12.3f} {r['gradient_program_mib']:9.1f}  "
+                f"{r['ratio']:.2f} ({r['ratio_paired_median']:.2f})",
+                flush=True,
+            )
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, "grad_by_scene.csv")
     with open(path, "w", newline="") as f:

@@ -15,6 +15,7 @@ Prints a table, writes benchmarks/results/grad_cost.csv and grad_cost.png (log-l
 
     python benchmarks/grad_cost.py [--steps 100,300,1000,3000,10000] [--modes nested,steps,none] [--max-gib 8]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,8 +27,8 @@ import time
 
 import jax
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 jax.config.update("jax_enable_x64", True)
 
@@ -37,6 +38,7 @@ def problem(n_steps):
 
     import jaxmpm
     from jaxmpm.step import cfl_time_step
+
     probe = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
     p0 = jaxmpm.default_params(probe)
     dt = 0.5 * float(cfl_time_step(probe, p0, jaxmpm.init_state(probe, p0)))
@@ -47,8 +49,9 @@ def problem(n_steps):
 
     def loss(theta, checkpoint):
         p = dataclasses.replace(params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
-        final, _ = jaxmpm.simulate(scene, p, state, t_end=scene.t_end, n_out=1, dt=dt, n_steps=n_steps,
-                                   checkpoint=checkpoint)
+        final, _ = jaxmpm.simulate(
+            scene, p, state, t_end=scene.t_end, n_out=1, dt=dt, n_steps=n_steps, checkpoint=checkpoint
+        )
         m = final.mass[sl]
         return jnp.sum(m * final.x[sl, 1]) / jnp.sum(m)
 
@@ -78,14 +81,25 @@ def measure(n_steps, mode, max_bytes):
     c_vg = vg.lower(theta).compile()
     compile_s = time.perf_counter() - t0
     mem_fwd, mem_vg = program_bytes(c_fwd), program_bytes(c_vg)
-    row = dict(steps=n_steps, checkpoint=mode, particles=n_particles, dt=dt, compile_s=round(compile_s, 2),
-               forward_peak_mib=mem_fwd / 2**20, gradient_peak_mib=mem_vg / 2**20,
-               forward_s=float("nan"), gradient_s=float("nan"), ratio=float("nan"), finite=None, device=describe())
+    row = dict(
+        steps=n_steps,
+        checkpoint=mode,
+        particles=n_particles,
+        dt=dt,
+        compile_s=round(compile_s, 2),
+        forward_peak_mib=mem_fwd / 2**20,
+        gradient_peak_mib=mem_vg / 2**20,
+        forward_s=float("nan"),
+        gradient_s=float("nan"),
+        ratio=float("nan"),
+        finite=None,
+        device=describe(),
+    )
     if mem_vg > max_bytes:
         return row
-    jax.block_until_ready(c_fwd(theta))             # warm
+    jax.block_until_ready(c_fwd(theta))  # warm
     fwd_s, grad_s = [], []
-    while not grad_s or (len(grad_s) < 3 and sum(grad_s) < 10.0):   # fastest of 3 for short runs
+    while not grad_s or (len(grad_s) < 3 and sum(grad_s) < 10.0):  # fastest of 3 for short runs
         t0 = time.perf_counter()
         jax.block_until_ready(c_fwd(theta))
         fwd_s.append(time.perf_counter() - t0)
@@ -100,8 +114,10 @@ def measure(n_steps, mode, max_bytes):
 
 def plot(rows, path):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for ck, style in (("nested", "o-"), ("steps", "^-."), ("none", "s--")):
         rs = [r for r in rows if r["checkpoint"] == ck]
@@ -147,9 +163,12 @@ def main():
         for ck in modes:
             r = measure(n, ck, args.max_gib * 2**30)
             rows.append(r)
-            print(f"{n:>6} {ck:>7} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
-                  f"{r['forward_s']:>8.3f} {r['gradient_s']:>8.3f} {r['ratio']:>6.2f}", flush=True)
-            with open(path, "w", newline="") as f:          # rewritten after each row: a long run keeps what it measured
+            print(
+                f"{n:>6} {ck:>7} {r['forward_peak_mib']:>9.1f} {r['gradient_peak_mib']:>9.1f} "
+                f"{r['forward_s']:>8.3f} {r['gradient_s']:>8.3f} {r['ratio']:>6.2f}",
+                flush=True,
+            )
+            with open(path, "w", newline="") as f:  # rewritten after each row: a long run keeps what it measured
                 w = csv.DictWriter(f, fieldnames=list(rows[0]))
                 w.writeheader()
                 w.writerows(rows)

@@ -24,6 +24,7 @@ Run:  python benchmarks/kernel_count.py                    # 2D 32^2, 3D 16^3
 Writes benchmarks/results/kernel_count_<backend>.csv and .md (or --out NAME.csv, and NAME.md) and
 prints the table.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,16 +36,43 @@ import sys
 import time
 from pathlib import Path
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 HERE = Path(__file__).resolve().parent
 SCHEMES = {"apic": ("bspline2", "apic"), "linear-musl": ("linear", "musl"), "ddmp-musl": ("ddmp", "musl")}
 # instructions that compute nothing on the device (views, tuples, constants, control)
-FREE = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all", "partition-id", "replica-id",
-        "opt-barrier", "add-dependency", "domain"}
-FIELDS = ["scheme", "dim", "n_grid", "form", "particles", "kernels", "launches", "fusions", "loops", "scatters",
-          "gathers", "compile_s", "backend", "device", "jax_version", "date"]
+FREE = {
+    "parameter",
+    "constant",
+    "get-tuple-element",
+    "tuple",
+    "bitcast",
+    "after-all",
+    "partition-id",
+    "replica-id",
+    "opt-barrier",
+    "add-dependency",
+    "domain",
+}
+FIELDS = [
+    "scheme",
+    "dim",
+    "n_grid",
+    "form",
+    "particles",
+    "kernels",
+    "launches",
+    "fusions",
+    "loops",
+    "scatters",
+    "gathers",
+    "compile_s",
+    "backend",
+    "device",
+    "jax_version",
+    "date",
+]
 
 _COMP = re.compile(r"^(ENTRY\s+)?%?([\w.\-]+)\s.*\{\s*$")
 _INSTR = re.compile(r"^\s*(ROOT\s+)?%?[\w.\-]+\s*=\s*(.*?)\s([a-z][\w\-]*)\((.*)$")
@@ -88,8 +116,9 @@ def count_kernels(hlo: str) -> dict:
         """Whether a fused computation (or one it calls) holds one of ops."""
         if comp in seen or comp not in comps:
             return False
-        return any(op in ops or any(holds(c, ops, seen + (comp,)) for c in _called(rest, "calls"))
-                   for op, rest in comps[comp])
+        return any(
+            op in ops or any(holds(c, ops, seen + (comp,)) for c in _called(rest, "calls")) for op, rest in comps[comp]
+        )
 
     totals = dict(kernels=0, launches=0, fusions=0, loops=0, scatters=0, gathers=0)
 
@@ -104,12 +133,16 @@ def count_kernels(hlo: str) -> dict:
                     visit(c, times * (n + 1))
                 continue
             if op in ("conditional", "call"):
-                branches = _called(rest, "branch_computations") + _called(rest, "true_computation") + \
-                    _called(rest, "false_computation") + (_called(rest, "to_apply") if op == "call" else [])
+                branches = (
+                    _called(rest, "branch_computations")
+                    + _called(rest, "true_computation")
+                    + _called(rest, "false_computation")
+                    + (_called(rest, "to_apply") if op == "call" else [])
+                )
                 for c in branches:
                     visit(c, times)
                 if op == "conditional":
-                    totals["kernels"] += 1          # the predicate's read
+                    totals["kernels"] += 1  # the predicate's read
                     totals["launches"] += times
                 continue
             if op in FREE:
@@ -134,7 +167,7 @@ def count_step(scheme: str, dim: int, n_grid: int, form: str) -> dict:
     from jaxmpm.forms import transfer_forms
 
     shape, transfer = SCHEMES[scheme]
-    scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim, ppc_scale=1e-9)   # 1 particle per cell
+    scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim, ppc_scale=1e-9)  # 1 particle per cell
     scene = dataclasses.replace(scene, shape=shape, transfer=transfer)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
@@ -143,26 +176,40 @@ def count_step(scheme: str, dim: int, n_grid: int, form: str) -> dict:
     with transfer_forms(form):
         step = jaxmpm.make_step(scene)
         hlo = jaxmpm.jit(lambda p, s, dt: step(p, s, jnp.inf, dt)).lower(params, state, dt).compile().as_text()
-    return dict(scheme=scheme, dim=dim, n_grid=n_grid, form=form, particles=int(state.n_particles),
-                compile_s=round(time.perf_counter() - t0, 2), backend=jax.default_backend(), device=describe(),
-                jax_version=jax.__version__) | count_kernels(hlo)
+    return dict(
+        scheme=scheme,
+        dim=dim,
+        n_grid=n_grid,
+        form=form,
+        particles=int(state.n_particles),
+        compile_s=round(time.perf_counter() - t0, 2),
+        backend=jax.default_backend(),
+        device=describe(),
+        jax_version=jax.__version__,
+    ) | count_kernels(hlo)
 
 
 def markdown(rows) -> str:
     """The table as markdown: one line per scheme and dimension, the two forms side by side."""
-    head = ("| scheme | dim | grid | kernels cpu / gpu form | launches cpu / gpu | fusions cpu / gpu | loops cpu / gpu "
-            "| scatters cpu / gpu | gathers cpu / gpu |\n|---|---|---|---|---|---|---|---|---|\n")
+    head = (
+        "| scheme | dim | grid | kernels cpu / gpu form | launches cpu / gpu | fusions cpu / gpu | loops cpu / gpu "
+        "| scatters cpu / gpu | gathers cpu / gpu |\n|---|---|---|---|---|---|---|---|---|\n"
+    )
     by = {(r["scheme"], r["dim"], r["form"]): r for r in rows}
     lines = []
-    for (scheme, dim) in dict.fromkeys((r["scheme"], r["dim"]) for r in rows):
+    for scheme, dim in dict.fromkeys((r["scheme"], r["dim"]) for r in rows):
         c, g = by.get((scheme, dim, "cpu"), {}), by.get((scheme, dim, "gpu"), {})
         pair = lambda k: f"{c.get(k, '')} / {g.get(k, '')}"
         n = (c or g)["n_grid"]
-        lines.append(f"| {scheme} | {dim} | {n}^{dim} | {pair('kernels')} | {pair('launches')} | {pair('fusions')} | "
-                     f"{pair('loops')} | {pair('scatters')} | {pair('gathers')} |")
+        lines.append(
+            f"| {scheme} | {dim} | {n}^{dim} | {pair('kernels')} | {pair('launches')} | {pair('fusions')} | "
+            f"{pair('loops')} | {pair('scatters')} | {pair('gathers')} |"
+        )
     r0 = rows[0]
-    return (f"Kernels per step of mpm88 (one compiled step, float32), {r0['backend']} backend, {r0['device']}, "
-            f"jax {r0['jax_version']}, {r0['date']}\n\n" + head + "\n".join(lines) + "\n")
+    return (
+        f"Kernels per step of mpm88 (one compiled step, float32), {r0['backend']} backend, {r0['device']}, "
+        f"jax {r0['jax_version']}, {r0['date']}\n\n" + head + "\n".join(lines) + "\n"
+    )
 
 
 def write(rows, out: Path):
@@ -180,8 +227,9 @@ def main(argv=None):
     ap.add_argument("--n-grid-3d", type=int, default=16, help="3D grid cells per axis (default 16)")
     ap.add_argument("--schemes", default=",".join(SCHEMES), help="comma-separated, of " + ", ".join(SCHEMES))
     ap.add_argument("--dims", default="2,3", help="comma-separated dimensions (default 2,3)")
-    ap.add_argument("--out", default=None, help="CSV to write, the markdown beside it (default "
-                    "results/kernel_count_<backend>.csv)")
+    ap.add_argument(
+        "--out", default=None, help="CSV to write, the markdown beside it (default results/kernel_count_<backend>.csv)"
+    )
     add_overwrite(ap)
     a = ap.parse_args(argv)
     schemes = [s.strip() for s in a.schemes.split(",") if s.strip()]
@@ -207,11 +255,14 @@ def main(argv=None):
         for dim in dims:
             for form in ("cpu", "gpu"):
                 r = count_step(scheme, dim, a.n_grid_2d if dim == 2 else a.n_grid_3d, form) | dict(date=date)
-                print(f"  {scheme:12s} {dim}D {form} form: {r['kernels']} kernels, {r['launches']} launches, "
-                      f"{r['loops']} loops, {r['scatters']} scatters ({r['compile_s']:.1f} s to compile)",
-                      file=sys.stderr, flush=True)
+                print(
+                    f"  {scheme:12s} {dim}D {form} form: {r['kernels']} kernels, {r['launches']} launches, "
+                    f"{r['loops']} loops, {r['scatters']} scatters ({r['compile_s']:.1f} s to compile)",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 rows.append(r)
-                write(rows, out)              # after every row: a run stopped at a time limit keeps its counts
+                write(rows, out)  # after every row: a run stopped at a time limit keeps its counts
     print(markdown(rows))
     print(f"wrote {out} and {out.with_suffix('.md')}")
 

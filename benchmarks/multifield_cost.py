@@ -12,6 +12,7 @@ benchmarks/results/multifield_cost.csv and a bar chart of the ratios
 
     python benchmarks/multifield_cost.py [--steps 100] [--repeats 7] [--x64]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,8 +24,8 @@ import time
 
 import jax
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 
 
 def scene_for(n_fields, n_grid, continuity="auto", window=False):
@@ -35,11 +36,19 @@ def scene_for(n_fields, n_grid, continuity="auto", window=False):
 
     mat = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.33)
     groups = {1: (0, 0, 0), 2: (0, 1, 1), 3: (0, 1, 2)}[n_fields]
-    phases = (Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=groups[0]),
-              Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=groups[1]),
-              Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=groups[2]))
-    scene = Scene(grid=Grid(cells=(n_grid, n_grid), h=1.0 / n_grid), materials=(mat,), phases=phases,
-                  drag=1e3 if n_fields > 1 else None, continuity=continuity, name=f"impact_{n_fields}_fields")
+    phases = (
+        Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=groups[0]),
+        Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=groups[1]),
+        Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=groups[2]),
+    )
+    scene = Scene(
+        grid=Grid(cells=(n_grid, n_grid), h=1.0 / n_grid),
+        materials=(mat,),
+        phases=phases,
+        drag=1e3 if n_fields > 1 else None,
+        continuity=continuity,
+        name=f"impact_{n_fields}_fields",
+    )
     if window:
         x = jaxmpm.init_state(scene, jaxmpm.default_params(scene)).x
         scene = dataclasses.replace(scene, window=jaxmpm.ddmp.fitting_window(scene, x, margin=4))
@@ -59,10 +68,20 @@ def compile_case(n_fields, n_grid, steps, continuity="auto", window=False):
     state = jax.block_until_ready(run(params, state))
     compile_s = time.perf_counter() - t0
     finite = bool(jax.numpy.all(jax.numpy.isfinite(state.x)))
-    return dict(run=run, params=params, state=state,
-                row=dict(fields=n_fields, continuity=scene.continuity_form,
-                         window="x".join(map(str, scene.window)) if scene.window else "grid",
-                         particles=state.x.shape[0], steps=steps, compile_s=compile_s, finite=finite))
+    return dict(
+        run=run,
+        params=params,
+        state=state,
+        row=dict(
+            fields=n_fields,
+            continuity=scene.continuity_form,
+            window="x".join(map(str, scene.window)) if scene.window else "grid",
+            particles=state.x.shape[0],
+            steps=steps,
+            compile_s=compile_s,
+            finite=finite,
+        ),
+    )
 
 
 def time_interleaved(cases, repeats):
@@ -85,30 +104,52 @@ def measure_all(configs, n_grid, steps, repeats):
     for c, sec in zip(cases, time_interleaved(cases, repeats)):
         r = c["row"]
         n = r["particles"]
-        rows.append(dict(fields=r["fields"], continuity=r["continuity"], window=r["window"], particles=n, steps=steps, seconds=sec,
-                         us_per_step=1e6 * sec / steps, ns_per_particle_step=1e9 * sec / steps / n,
-                         compile_s=r["compile_s"], finite=r["finite"]))
+        rows.append(
+            dict(
+                fields=r["fields"],
+                continuity=r["continuity"],
+                window=r["window"],
+                particles=n,
+                steps=steps,
+                seconds=sec,
+                us_per_step=1e6 * sec / steps,
+                ns_per_particle_step=1e9 * sec / steps / n,
+                compile_s=r["compile_s"],
+                finite=r["finite"],
+            )
+        )
     return rows
 
 
 def plot(rows, path):
     """Bars of the cost per particle-step relative to one field, by field count and continuity form."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 3.8))
-    labels = [f"{r['fields']} field{'s' if r['fields'] > 1 else ''}" + (f"\n{r['continuity']}" if r["fields"] > 1 else "")
-              + ("" if r["window"] == "grid" else f"\nblocks {r['window']}") for r in rows]
+    labels = [
+        f"{r['fields']} field{'s' if r['fields'] > 1 else ''}"
+        + (f"\n{r['continuity']}" if r["fields"] > 1 else "")
+        + ("" if r["window"] == "grid" else f"\nblocks {r['window']}")
+        for r in rows
+    ]
     ratios = [r["ratio_to_1_field"] for r in rows]
-    ax.bar(range(len(rows)), ratios, color=["0.6" if r["fields"] == 1 else ("C0" if r["window"] == "grid" else "C2") for r in rows])
+    ax.bar(
+        range(len(rows)),
+        ratios,
+        color=["0.6" if r["fields"] == 1 else ("C0" if r["window"] == "grid" else "C2") for r in rows],
+    )
     for i, v in enumerate(ratios):
         ax.text(i, v, f"{v:.2f}", ha="center", va="bottom", fontsize="small")
     ax.axhline(2.0, color="r", ls="--", lw=1, label="target: 3 fields <= 2x one field")
     ax.set_xticks(range(len(rows)), labels, fontsize="small")
     ax.set_ylabel("cost per particle-step\n/ one field, same DDMP grid")
-    ax.set_title(f"multi-field DDMP step ({rows[0]['particles']} particles; {describe()}, {os.cpu_count()} CPUs)",
-                 fontsize="medium")
+    ax.set_title(
+        f"multi-field DDMP step ({rows[0]['particles']} particles; {describe()}, {os.cpu_count()} CPUs)",
+        fontsize="medium",
+    )
     ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -133,25 +174,43 @@ def main():
     if a.short:
         configs = [(1, "auto", False), (3, "transport", False)]
     rows = measure_all(configs, a.n_grid, a.steps, a.repeats)
-    base = {w: next(r for r in rows if r["fields"] == 1 and (r["window"] != "grid") == w)["ns_per_particle_step"]
-            for w in (False, True) if any(r["fields"] == 1 and (r["window"] != "grid") == w for r in rows)}
-    print(f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {describe()}, "
-          f"{os.cpu_count()} CPUs, jax {jax.__version__}")
-    print("x 1 field: against one field computed the same way (whole grid, or blocks); x grid: against one field on the whole grid")
-    print(f"{'fields':>6} {'continuity':>10} {'DDMP on':>8} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} "
-          f"{'x 1 field':>9} {'x grid':>6} {'finite':>6}")
+    base = {
+        w: next(r for r in rows if r["fields"] == 1 and (r["window"] != "grid") == w)["ns_per_particle_step"]
+        for w in (False, True)
+        if any(r["fields"] == 1 and (r["window"] != "grid") == w for r in rows)
+    }
+    print(
+        f"multi-field DDMP step, {a.n_grid}^2 grid, {'float64' if a.x64 else 'float32'}, {describe()}, "
+        f"{os.cpu_count()} CPUs, jax {jax.__version__}"
+    )
+    print(
+        "x 1 field: against one field computed the same way (whole grid, or blocks); x grid: against one field on the whole grid"
+    )
+    print(
+        f"{'fields':>6} {'continuity':>10} {'DDMP on':>8} {'particles':>9} {'us/step':>9} {'ns/part-step':>12} "
+        f"{'x 1 field':>9} {'x grid':>6} {'finite':>6}"
+    )
     for r in rows:
         r["ratio_to_1_field"] = r["ns_per_particle_step"] / base[r["window"] != "grid"]
         r["ratio_to_1_field_grid"] = r["ns_per_particle_step"] / base[False]
-        print(f"{r['fields']:>6} {r['continuity']:>10} {r['window']:>8} {r['particles']:>9} {r['us_per_step']:>9.0f} "
-              f"{r['ns_per_particle_step']:>12.1f} {r['ratio_to_1_field']:>9.2f} {r['ratio_to_1_field_grid']:>6.2f} {str(r['finite']):>6}")
+        print(
+            f"{r['fields']:>6} {r['continuity']:>10} {r['window']:>8} {r['particles']:>9} {r['us_per_step']:>9.0f} "
+            f"{r['ns_per_particle_step']:>12.1f} {r['ratio_to_1_field']:>9.2f} {r['ratio_to_1_field_grid']:>6.2f} {str(r['finite']):>6}"
+        )
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["device", "cpus", "jax", "python"])
         w.writeheader()
         for r in rows:
-            w.writerow({**r, "device": describe(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                        "python": platform.python_version()})
+            w.writerow(
+                {
+                    **r,
+                    "device": describe(),
+                    "cpus": os.cpu_count(),
+                    "jax": jax.__version__,
+                    "python": platform.python_version(),
+                }
+            )
     png = os.path.splitext(a.out)[0] + ".png"
     plot(rows, png)
     print(f"wrote {a.out} and {png}")

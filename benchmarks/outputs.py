@@ -1,6 +1,7 @@
 """Where the benchmarks write. Their tables and figures under benchmarks/results are the project's
 (kept in git, rewritten by every run); a file anywhere else that already exists is a user's, so a
 benchmark refuses it before it measures anything, unless --overwrite is given."""
+
 from __future__ import annotations
 
 import os
@@ -11,8 +12,11 @@ RESULTS = (Path(__file__).parent / "results").resolve()
 
 
 def add_overwrite(parser) -> None:
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing files outside benchmarks/results (those are rewritten freely)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing files outside benchmarks/results (those are rewritten freely)",
+    )
 
 
 def check_outputs(*paths, overwrite: bool = False) -> None:

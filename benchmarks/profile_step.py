@@ -22,6 +22,7 @@ cell is the fastest of --runs calls (the machine's load lengthens some of them).
 
 Prints the table; writes benchmarks/results/profile_<scene>.csv (ms per step under the profiler).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,8 +39,8 @@ import time
 
 import jax
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
 from grad_by_scene import SCENES, problem
 from jaxmpm.step import STAGE_PARTS, STAGES
 
@@ -87,7 +88,9 @@ def kernel_times(compiled, args, runs):
             for _ in range(runs):
                 jax.block_until_ready(compiled(*args))
         trace = json.load(gzip.open(glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)[0]))
-    events = [e for e in (trace["traceEvents"] if isinstance(trace, dict) else trace) if e.get("ph") == "X" and "dur" in e]
+    events = [
+        e for e in (trace["traceEvents"] if isinstance(trace, dict) else trace) if e.get("ph") == "X" and "dur" in e
+    ]
     calls = sorted(e["ts"] for e in events if e.get("name", "").startswith("PjitFunction"))[-runs:]
     per_call = [collections.Counter() for _ in calls]
     for e in events:
@@ -111,11 +114,14 @@ def profile(name, n_steps, runs, parts):
     """Rows {stage, forward_ms, <pass>_ms..., gradient_ms, ratio} in ms per step under the profiler,
     and the untraced wall times (s) of the forward run and of the gradient."""
     import jaxmpm
+
     loss, a, *_ = problem(name, n_steps)
-    programs = {"forward": jaxmpm.jit(loss).lower(a).compile(),
-                "gradient": jaxmpm.jit(jax.value_and_grad(loss)).lower(a).compile()}
+    programs = {
+        "forward": jaxmpm.jit(loss).lower(a).compile(),
+        "gradient": jaxmpm.jit(jax.value_and_grad(loss)).lower(a).compile(),
+    }
     wall = {k: wall_seconds(c, (a,)) for k, c in programs.items()}
-    table = collections.defaultdict(dict)           # stage -> column -> the fastest call's ms per step
+    table = collections.defaultdict(dict)  # stage -> column -> the fastest call's ms per step
     for kind, compiled in programs.items():
         names = kernel_names(compiled.as_text())
         calls = kernel_times(compiled, (a,), runs)
@@ -133,8 +139,16 @@ def profile(name, n_steps, runs, parts):
     for stage in sorted(table, key=lambda s: (s == OUTSIDE, s)):
         c = collections.Counter(table[stage])
         grad = sum(c[p] for p in PASSES)
-        rows.append(dict(scene=name, stage=stage, forward_ms=c["forward"], **{p.replace(" ", "_") + "_ms": c[p] for p in PASSES},
-                         gradient_ms=grad, ratio=grad / c["forward"] if c["forward"] > 0 else float("nan")))
+        rows.append(
+            dict(
+                scene=name,
+                stage=stage,
+                forward_ms=c["forward"],
+                **{p.replace(" ", "_") + "_ms": c[p] for p in PASSES},
+                gradient_ms=grad,
+                ratio=grad / c["forward"] if c["forward"] > 0 else float("nan"),
+            )
+        )
     total = {k: sum(r[k] for r in rows) for k in rows[0] if k.endswith("_ms")}
     rows.append(dict(scene=name, stage="all", **total, ratio=total["gradient_ms"] / total["forward_ms"]))
     return rows, wall
@@ -144,8 +158,12 @@ def main():
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--scene", default="elastic_impact", help=" | ".join(SCENES))
     ap.add_argument("--steps", type=int, default=20, help="checkpointed steps (after 100 untimed)")
-    ap.add_argument("--runs", type=int, default=5, help="calls of each program under the profiler (each cell: the fastest)")
-    ap.add_argument("--parts", action="store_true", help="split the grid update and the grid-to-particle stage into their parts")
+    ap.add_argument(
+        "--runs", type=int, default=5, help="calls of each program under the profiler (each cell: the fastest)"
+    )
+    ap.add_argument(
+        "--parts", action="store_true", help="split the grid update and the grid-to-particle stage into their parts"
+    )
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     add_overwrite(ap)
     args = ap.parse_args()
@@ -155,15 +173,21 @@ def main():
     if args.steps < 1 or args.runs < 1:
         ap.error("--steps and --runs: at least 1")
     rows, wall = profile(args.scene, args.steps, args.runs, args.parts)
-    print(f"{args.scene}, {args.steps} checkpointed steps, float64, {describe()}; untraced: forward "
-          f"{wall['forward'] / args.steps * 1e3:.3f} ms per step, gradient {wall['gradient'] / args.steps * 1e3:.3f} "
-          f"({wall['gradient'] / wall['forward']:.2f} forward runs)")
+    print(
+        f"{args.scene}, {args.steps} checkpointed steps, float64, {describe()}; untraced: forward "
+        f"{wall['forward'] / args.steps * 1e3:.3f} ms per step, gradient {wall['gradient'] / args.steps * 1e3:.3f} "
+        f"({wall['gradient'] / wall['forward']:.2f} forward runs)"
+    )
     print("ms per step under the profiler:")
-    print(f"{'stage':40s} {'forward':>8s} {'share':>6s} | {'fwd pass':>8s} {'recompute':>9s} {'transpose':>9s} {'gradient':>8s} {'ratio':>6s}")
+    print(
+        f"{'stage':40s} {'forward':>8s} {'share':>6s} | {'fwd pass':>8s} {'recompute':>9s} {'transpose':>9s} {'gradient':>8s} {'ratio':>6s}"
+    )
     whole = rows[-1]["forward_ms"]
     for r in rows:
-        print(f"{r['stage']:40s} {r['forward_ms']:8.3f} {r['forward_ms'] / whole:6.1%} | {r['forward_pass_ms']:8.3f} "
-              f"{r['recompute_ms']:9.3f} {r['transpose_ms']:9.3f} {r['gradient_ms']:8.3f} {r['ratio']:6.2f}")
+        print(
+            f"{r['stage']:40s} {r['forward_ms']:8.3f} {r['forward_ms'] / whole:6.1%} | {r['forward_pass_ms']:8.3f} "
+            f"{r['recompute_ms']:9.3f} {r['transpose_ms']:9.3f} {r['gradient_ms']:8.3f} {r['ratio']:6.2f}"
+        )
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, f"profile_{args.scene}.csv")
     with open(path, "w", newline="") as f:

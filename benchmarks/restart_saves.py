@@ -12,6 +12,7 @@ Run:  python benchmarks/restart_saves.py                          # elastic_impa
       python benchmarks/restart_saves.py --outputs 2000 --scene taylor_bar
 Writes benchmarks/results/restart_saves.csv (or --out) with device, CPU count and date.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -53,8 +54,13 @@ def measure(scene, params, state, n, append, report, folder):
         sizes.append(None if w0 is None else _written() - w0)
         if k in report:
             last = slice(max(0, len(times) - 5), None)
-            rows.append((k, 1e3 * statistics.median(times[last]),
-                         None if sizes[-1] is None else int(statistics.median(sizes[last]))))
+            rows.append(
+                (
+                    k,
+                    1e3 * statistics.median(times[last]),
+                    None if sizes[-1] is None else int(statistics.median(sizes[last])),
+                )
+            )
     path.unlink()
     return rows
 
@@ -85,8 +91,10 @@ def main(argv=None):
         for append, n in ((True, args.outputs), (False, min(args.full_max, args.outputs))):
             for k, ms, b in measure(scene, params, state, n, append, [r for r in report if r <= n], folder):
                 table.append(("append" if append else "rewrite", k, ms, b))
-    header = f"{args.scene} (resolution {args.resolution}): {state.x.shape[0]} particles, a state {state_bytes / 1e3:.1f} kB; " \
-             f"{jax.devices()[0]}, {os.cpu_count()} CPUs, {datetime.date.today()}"
+    header = (
+        f"{args.scene} (resolution {args.resolution}): {state.x.shape[0]} particles, a state {state_bytes / 1e3:.1f} kB; "
+        f"{jax.devices()[0]}, {os.cpu_count()} CPUs, {datetime.date.today()}"
+    )
     print(header)
     print(f"{'save':<8}{'outputs before':>15}{'ms per save':>13}{'bytes written':>15}")
     for mode, k, ms, b in table:

@@ -58,6 +58,7 @@ count, jax version and date, and a bar chart of the rates beside it (same name, 
 On a GPU (JAX's default backend) the CPU-only configurations are left out unless --configs names
 them; the peer scripts then run there too where they can (jax-naive on JAX's default backend).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -73,11 +74,11 @@ import sys
 import time
 from pathlib import Path
 
-from devices import describe   # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs, check_table   # benchmarks/outputs.py
+from devices import describe  # benchmarks/devices.py
+from outputs import add_overwrite, check_outputs, check_table  # benchmarks/outputs.py
 
 HERE = Path(__file__).resolve().parent
-PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"   # /work/shared/bench/peers
+PEERS_DIR = HERE.parent.parent / "shared" / "bench" / "peers"  # /work/shared/bench/peers
 YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
 
 CORES = os.cpu_count() or 1
@@ -96,7 +97,7 @@ JAXMPM = {
 }
 # peer configurations: name -> (script, module it needs, extra XLA flag or None, dims it covers, device argument)
 PEERS = {
-    "jax-naive": ("jax_mpm.py", "jax", None, (2, 3), None),   # on JAX's default backend (a GPU where there is one)
+    "jax-naive": ("jax_mpm.py", "jax", None, (2, 3), None),  # on JAX's default backend (a GPU where there is one)
     "jax-naive+ynn": ("jax_mpm.py", "jax", YNN_FLAG, (2, 3), None),
     "taichi-cpu": ("taichi_mpm.py", "taichi", None, (2, 3), None),
     "warp-cpu": ("warp_mpm.py", "warp", None, (2,), None),
@@ -107,8 +108,28 @@ PEERS = {
 CPU_ONLY = ("jax-naive+ynn", "taichi-cpu", "warp-cpu", "jaxmpm-split-cores", "jaxmpm-xla-defaults")
 # configurations that need a GPU: left out by default where JAX's default backend is the CPU
 GPU_ONLY = ("taichi-cuda", "warp-cuda")
-FIELDS = ["config", "dim", "n_grid", "particles", "steps", "dt", "seconds", "compile_s", "mpart_steps_per_s",
-          "ratio_to_jax_naive", "kernels", "launches_per_step", "finite", "stable", "note", "xla_flags", "device", "cpu_count", "jax_version", "date"]
+FIELDS = [
+    "config",
+    "dim",
+    "n_grid",
+    "particles",
+    "steps",
+    "dt",
+    "seconds",
+    "compile_s",
+    "mpart_steps_per_s",
+    "ratio_to_jax_naive",
+    "kernels",
+    "launches_per_step",
+    "finite",
+    "stable",
+    "note",
+    "xla_flags",
+    "device",
+    "cpu_count",
+    "jax_version",
+    "date",
+]
 
 
 def peer_dt(dim: int, n_grid: int) -> float:
@@ -129,7 +150,7 @@ def mpm88_scene(n_grid: int, dim: int, ppc: int | None):
 
     if ppc is None:
         return jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim)
-    scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim, ppc_scale=1e-9)   # its own lattice: 1 per cell, replaced
+    scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim, ppc_scale=1e-9)  # its own lattice: 1 per cell, replaced
     if ppc is not None:
         scene = dataclasses.replace(scene, phases=(dataclasses.replace(scene.phases[0], ppc=ppc),))
     return scene
@@ -163,11 +184,11 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int, ppc: 
     from jaxmpm.forms import transfer_form
 
     scene = dataclasses.replace(mpm88_scene(n_grid, dim, ppc), shape=shape, transfer=transfer)
-    params = jaxmpm.default_params(scene)      # float32 (x64 stays off)
+    params = jaxmpm.default_params(scene)  # float32 (x64 stays off)
     state0 = jaxmpm.init_state(scene, params)
     n = int(state0.n_particles)
     shards = len(jax.devices()) if flag == HOST_DEVICES_FLAG else 1
-    if shards > 1:      # particles split across the devices (padding copies carry eps^2 of the mass)
+    if shards > 1:  # particles split across the devices (padding copies carry eps^2 of the mass)
         mesh = distributed.particle_mesh()
         state0 = distributed.to_shards(scene, state0, mesh)
         step = distributed.make_sharded_step(scene, mesh)
@@ -177,13 +198,13 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int, ppc: 
     def rollout(params, state, dt):
         return jax.lax.scan(lambda s, _: (step(params, s, jnp.inf, dt), None), state, None, length=steps)[0]
 
-    def energy(s):   # kinetic + gravitational + internal (state.energy is per unit mass), J
+    def energy(s):  # kinetic + gravitational + internal (state.energy is per unit mass), J
         m = s.mass
         return float(jnp.sum(m * (0.5 * jnp.sum(s.v**2, -1) - s.x @ params.gravity + s.energy)))
 
-    e0 = energy(state0)            # (padding copies: eps^2 of a particle's energy each)
+    e0 = energy(state0)  # (padding copies: eps^2 of a particle's energy each)
 
-    def stability(s):   # -> (finite, stable, max |v| m/s, relative energy change)
+    def stability(s):  # -> (finite, stable, max |v| m/s, relative energy change)
         s = distributed.from_shards(scene, s, shards) if shards > 1 else s
         finite = all(bool(np.isfinite(np.asarray(a)).all()) for a in jax.tree.leaves(s))
         if not finite:
@@ -206,18 +227,19 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int, ppc: 
 
     dt = jnp.asarray(peer_dt(dim, n_grid), jnp.float32)
     t0 = time.perf_counter()
-    sim = jaxmpm.jit(rollout).lower(params, state0, dt).compile()   # dt is traced: no recompile on fallback
+    sim = jaxmpm.jit(rollout).lower(params, state0, dt).compile()  # dt is traced: no recompile on fallback
     compile_s = time.perf_counter() - t0
-    from kernel_count import count_kernels   # benchmarks/kernel_count.py
+    from kernel_count import count_kernels  # benchmarks/kernel_count.py
+
     try:
         counts = count_kernels(sim.as_text())
         counts = dict(kernels=counts["kernels"], launches_per_step=round(counts["launches"] / steps, 1))
-    except Exception as e:                   # a count is a bonus: never lose the row for it
+    except Exception as e:  # a count is a bonus: never lose the row for it
         counts = dict(kernels=None, launches_per_step=None, count_error=repr(e)[:100])
     out, times = measure(dt)
     finite, stable, vmax, de = stability(out)
     note = "dt = peers' dt"
-    if not stable:   # fall back to a CFL-bounded step, and say so
+    if not stable:  # fall back to a CFL-bounded step, and say so
         why = f"max|v| = {vmax:.3g} m/s, dE/E0 = {de:+.2%}" if finite else "non-finite"
         note = f"UNSTABLE at peers' dt ({why} at t = {float(out.t):.3g} s): re-run at 0.3 * cfl_limit"
         dt = jnp.asarray(0.3 * jaxmpm.cfl_limit(scene, params, jaxmpm.init_state(scene, params)), jnp.float32)
@@ -228,17 +250,34 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int, ppc: 
     sec = statistics.median(times)
     if shards > 1:
         note += f"; particles split across {shards} host devices ({jax.devices()[0].platform})"
-    return dict(config=name, dim=dim, n_grid=n_grid, particles=n, steps=steps, dt=float(f"{float(dt):.6g}"), seconds=sec,
-                compile_s=compile_s, mpart_steps_per_s=n * steps / sec / 1e6, finite=finite, stable=stable,
-                note=note + f"; runs {', '.join('%.3f' % t for t in times)} s",
-                device=describe(), jax_version=jax.__version__) | counts
+    return (
+        dict(
+            config=name,
+            dim=dim,
+            n_grid=n_grid,
+            particles=n,
+            steps=steps,
+            dt=float(f"{float(dt):.6g}"),
+            seconds=sec,
+            compile_s=compile_s,
+            mpart_steps_per_s=n * steps / sec / 1e6,
+            finite=finite,
+            stable=stable,
+            note=note + f"; runs {', '.join('%.3f' % t for t in times)} s",
+            device=describe(),
+            jax_version=jax.__version__,
+        )
+        | counts
+    )
 
 
 # ----------------------------------------------------------------------------- parent: run everything
 def default_backend() -> str:
     """JAX's default backend ("cpu", "gpu", ...), asked of a child process: the parent keeps no
     device (a GPU client would hold memory the children need)."""
-    p = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"], capture_output=True, text=True)
+    p = subprocess.run(
+        [sys.executable, "-c", "import jax; print(jax.default_backend())"], capture_output=True, text=True
+    )
     return p.stdout.strip().splitlines()[-1] if p.returncode == 0 and p.stdout.strip() else "cpu"
 
 
@@ -264,7 +303,7 @@ def run_peer(name: str, a) -> dict:
         return row | dict(note="not installed")
     if not (Path(a.peers) / script).is_file():
         return row | dict(note=f"no {script} in --peers {a.peers}")
-    scale = 1.0 if a.match is None else (a.match + 0.5) / peer_particles(a.dim, a.n_grid)   # int() of it: a.match
+    scale = 1.0 if a.match is None else (a.match + 0.5) / peer_particles(a.dim, a.n_grid)  # int() of it: a.match
     cmd = [sys.executable, script, str(a.n_grid), str(a.dim), repr(scale), str(a.steps)] + ([device] if device else [])
     results = [run_child(cmd, child_env(flag), Path(a.peers), a.timeout) for _ in range(a.repeats)]
     ok = [r for r in results if "seconds" in r]
@@ -272,15 +311,33 @@ def run_peer(name: str, a) -> dict:
         return row | dict(note=results[-1].get("note", "failed"))
     sec = statistics.median(r["seconds"] for r in ok)
     n = ok[0]["particles"]
-    return row | dict(particles=n, dt=peer_dt(a.dim, a.n_grid), seconds=sec, mpart_steps_per_s=n * a.steps / sec / 1e6,
-                      finite=all(r["finite"] for r in ok), device=ok[0].get("device"),
-                      note=f"peer script, median of {len(ok)} calls: {', '.join('%.3f' % r['seconds'] for r in ok)} s")
+    return row | dict(
+        particles=n,
+        dt=peer_dt(a.dim, a.n_grid),
+        seconds=sec,
+        mpart_steps_per_s=n * a.steps / sec / 1e6,
+        finite=all(r["finite"] for r in ok),
+        device=ok[0].get("device"),
+        note=f"peer script, median of {len(ok)} calls: {', '.join('%.3f' % r['seconds'] for r in ok)} s",
+    )
 
 
 def run_jaxmpm_child(name: str, a) -> dict:
     flag = JAXMPM[name][2]
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--one", name, "--dim", str(a.dim),
-           "--n-grid", str(a.n_grid), "--steps", str(a.steps), "--repeats", str(a.repeats)]
+    cmd = [
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--one",
+        name,
+        "--dim",
+        str(a.dim),
+        "--n-grid",
+        str(a.n_grid),
+        "--steps",
+        str(a.steps),
+        "--repeats",
+        str(a.repeats),
+    ]
     cmd += [] if a.ppc is None else ["--ppc", str(a.ppc)]
     r = run_child(cmd, child_env(flag), HERE.parent, a.timeout)
     return dict(config=name, dim=a.dim, n_grid=a.n_grid, steps=a.steps) | r | dict(xla_flags=flag or "")
@@ -290,10 +347,14 @@ def complete(rows):
     """Add the ratio to the naive JAX peer, the device and the versions to every row; returns
     (device, the common columns)."""
     naive = next((r.get("mpart_steps_per_s") for r in rows if r["config"] == "jax-naive"), None)
-    device = next((r["device"] for r in sorted(rows, key=lambda r: not r["config"].startswith("jaxmpm")) if r.get("device")),
-                  "")   # a jaxmpm child's (the device's model included), else a JAX peer's
-    common = dict(cpu_count=os.cpu_count(), jax_version=importlib.metadata.version("jax"),
-                  date=datetime.datetime.now().isoformat(timespec="seconds"))
+    device = next(
+        (r["device"] for r in sorted(rows, key=lambda r: not r["config"].startswith("jaxmpm")) if r.get("device")), ""
+    )  # a jaxmpm child's (the device's model included), else a JAX peer's
+    common = dict(
+        cpu_count=os.cpu_count(),
+        jax_version=importlib.metadata.version("jax"),
+        date=datetime.datetime.now().isoformat(timespec="seconds"),
+    )
     for r in rows:
         rate = r.get("mpart_steps_per_s")
         r["ratio_to_jax_naive"] = rate / naive if rate and naive else None
@@ -315,6 +376,7 @@ def fmt(v, spec):
 def plot(rows, path):
     """Horizontal bars of Mpart-steps/s per configuration (peers grey, jaxmpm blue), written to path."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -330,8 +392,11 @@ def plot(rows, path):
     ax.set_yticks(list(y), names)
     ax.set_xlabel("Mpart-steps/s (higher is faster)")
     r0 = rows[0] if rows else {}
-    ax.set_title(f"mpm88 {r0.get('dim', '')}D, {r0.get('n_grid', '')}^{r0.get('dim', '')} grid, float32; "
-                 f"{r0.get('device', '')}, {r0.get('cpu_count', '')} CPUs", fontsize="medium")
+    ax.set_title(
+        f"mpm88 {r0.get('dim', '')}D, {r0.get('n_grid', '')}^{r0.get('dim', '')} grid, float32; "
+        f"{r0.get('device', '')}, {r0.get('cpu_count', '')} CPUs",
+        fontsize="medium",
+    )
     ax.set_xlim(0, 1.15 * max(rates, default=1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -345,17 +410,31 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=None, help="steps per timed run (default 500 in 2D, 100 in 3D)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     ap.add_argument("--only", choices=("jaxmpm", "peers"), default=None)
-    ap.add_argument("--configs", default=None, help="comma-separated configurations to run (default: all; where JAX's "
-                    "default backend is a GPU, all but the CPU-only " + ", ".join(CPU_ONLY) + ")")
-    ap.add_argument("--peers", default=str(PEERS_DIR), help="folder of the peer scripts (default ../shared/bench/peers)")
-    ap.add_argument("--ppc", type=int, default=None, help="jaxmpm's particles per cell per axis (1-8), and the peers "
-                    "run the same number of particles (default: each its own count)")
+    ap.add_argument(
+        "--configs",
+        default=None,
+        help="comma-separated configurations to run (default: all; where JAX's "
+        "default backend is a GPU, all but the CPU-only " + ", ".join(CPU_ONLY) + ")",
+    )
+    ap.add_argument(
+        "--peers", default=str(PEERS_DIR), help="folder of the peer scripts (default ../shared/bench/peers)"
+    )
+    ap.add_argument(
+        "--ppc",
+        type=int,
+        default=None,
+        help="jaxmpm's particles per cell per axis (1-8), and the peers "
+        "run the same number of particles (default: each its own count)",
+    )
     ap.add_argument("--timeout", type=float, default=900, help="seconds for each configuration's process (default 900)")
-    ap.add_argument("--out", default=None, help="CSV to write (default results/throughput.csv in 2D, "
-                    "results/throughput_3d.csv in 3D)")
+    ap.add_argument(
+        "--out",
+        default=None,
+        help="CSV to write (default results/throughput.csv in 2D, results/throughput_3d.csv in 3D)",
+    )
     ap.add_argument("--replot", default=None, metavar="CSV", help="only draw the PNG of a table this script wrote")
-    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)   # child mode: one jaxmpm config
-    ap.add_argument("--one-count", action="store_true", help=argparse.SUPPRESS)   # child mode: jaxmpm's particle count
+    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # child mode: one jaxmpm config
+    ap.add_argument("--one-count", action="store_true", help=argparse.SUPPRESS)  # child mode: jaxmpm's particle count
     add_overwrite(ap)
     a = ap.parse_args(argv)
     if a.replot:
@@ -376,8 +455,13 @@ def main(argv=None):
         print(json.dumps(run_jaxmpm(a.one, a.dim, a.n_grid, a.steps, a.repeats, a.ppc)))
         return
     if a.one_count:
-        print(len(__import__("jaxmpm.state", fromlist=["sample_phase"]).sample_phase(
-            *(lambda s: (s.grid, s.phases[0]))(mpm88_scene(a.n_grid, a.dim, a.ppc)))))
+        print(
+            len(
+                __import__("jaxmpm.state", fromlist=["sample_phase"]).sample_phase(
+                    *(lambda s: (s.grid, s.phases[0]))(mpm88_scene(a.n_grid, a.dim, a.ppc))
+                )
+            )
+        )
         return
     out = Path(a.out) if a.out else HERE / "results" / ("throughput.csv" if a.dim == 2 else "throughput_3d.csv")
     check_outputs(out, out.with_suffix(".png"), overwrite=a.overwrite)
@@ -389,15 +473,29 @@ def main(argv=None):
         unknown = sorted(set(wanted) - set(PEERS) - set(JAXMPM))
         if unknown:
             ap.error(f"--configs {','.join(unknown)} is invalid: allowed {', '.join(list(PEERS) + list(JAXMPM))}")
-        names = list(dict.fromkeys(wanted))            # in the order given
+        names = list(dict.fromkeys(wanted))  # in the order given
     else:
         left_out = CPU_ONLY if default_backend() != "cpu" else GPU_ONLY
         names = [n for n in names if n not in left_out]
     a.match = None
-    if a.ppc is not None:   # jaxmpm's particle count, from a CPU-only child (the parent keeps no device)
-        p = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--one-count", "--dim", str(a.dim),
-                            "--n-grid", str(a.n_grid), "--ppc", str(a.ppc)], capture_output=True, text=True,
-                           env=dict(os.environ, JAX_PLATFORMS="cpu"), cwd=HERE.parent)
+    if a.ppc is not None:  # jaxmpm's particle count, from a CPU-only child (the parent keeps no device)
+        p = subprocess.run(
+            [
+                sys.executable,
+                str(Path(__file__).resolve()),
+                "--one-count",
+                "--dim",
+                str(a.dim),
+                "--n-grid",
+                str(a.n_grid),
+                "--ppc",
+                str(a.ppc),
+            ],
+            capture_output=True,
+            text=True,
+            env=dict(os.environ, JAX_PLATFORMS="cpu"),
+            cwd=HERE.parent,
+        )
         if p.returncode != 0:
             sys.exit(f"--ppc {a.ppc}: counting jaxmpm's particles failed: {p.stderr.strip()[-500:]}")
         a.match = int(p.stdout.strip().splitlines()[-1])
@@ -405,24 +503,32 @@ def main(argv=None):
     for name in names:
         t0 = time.perf_counter()
         row = run_peer(name, a) if name in PEERS else run_jaxmpm_child(name, a)
-        print(f"  {name:20s} {fmt(row.get('mpart_steps_per_s'), '.3f'):>8s} Mpart-steps/s  "
-              f"({time.perf_counter() - t0:.0f} s wall)  {row.get('note', '')}", file=sys.stderr, flush=True)
+        print(
+            f"  {name:20s} {fmt(row.get('mpart_steps_per_s'), '.3f'):>8s} Mpart-steps/s  "
+            f"({time.perf_counter() - t0:.0f} s wall)  {row.get('note', '')}",
+            file=sys.stderr,
+            flush=True,
+        )
         rows.append(row)
         device, common = complete(rows)
-        write_table(rows, out)                   # after every row: a run stopped at a time limit keeps its rows
+        write_table(rows, out)  # after every row: a run stopped at a time limit keeps its rows
 
     # the table
-    print(f"\nmpm88 {a.dim}D, {a.n_grid}^{a.dim} grid, float32, dt = {peer_dt(a.dim, a.n_grid):.3g} s; "
-          f"device {device}, {common['cpu_count']} CPUs, jax {common['jax_version']}")
+    print(
+        f"\nmpm88 {a.dim}D, {a.n_grid}^{a.dim} grid, float32, dt = {peer_dt(a.dim, a.n_grid):.3g} s; "
+        f"device {device}, {common['cpu_count']} CPUs, jax {common['jax_version']}"
+    )
     head = f"{'config':20s} {'particles':>9s} {'steps':>5s} {'s':>8s} {'Mpart-steps/s':>13s} {'x naive':>7s} {'finite':>6s} {'stable':>6s}  note"
     print(head + "\n" + "-" * len(head))
     for r in rows:
         yn = lambda k: "" if r.get(k) is None else ("yes" if r[k] else "NO")
-        print(f"{r['config']:20s} {fmt(r.get('particles'), 'd'):>9s} {r['steps']:>5d} {fmt(r.get('seconds'), '.3f'):>8s} "
-              f"{fmt(r.get('mpart_steps_per_s'), '.3f'):>13s} {fmt(r.get('ratio_to_jax_naive'), '.2f'):>7s} {yn('finite'):>6s} {yn('stable'):>6s}  "
-              f"{'compile %.1f s; ' % r['compile_s'] if r.get('compile_s') else ''}"
-              f"{'%s kernels, %s launches/step; ' % (r['kernels'], r['launches_per_step']) if r.get('kernels') else ''}"
-              f"{r.get('note', '')}")
+        print(
+            f"{r['config']:20s} {fmt(r.get('particles'), 'd'):>9s} {r['steps']:>5d} {fmt(r.get('seconds'), '.3f'):>8s} "
+            f"{fmt(r.get('mpart_steps_per_s'), '.3f'):>13s} {fmt(r.get('ratio_to_jax_naive'), '.2f'):>7s} {yn('finite'):>6s} {yn('stable'):>6s}  "
+            f"{'compile %.1f s; ' % r['compile_s'] if r.get('compile_s') else ''}"
+            f"{'%s kernels, %s launches/step; ' % (r['kernels'], r['launches_per_step']) if r.get('kernels') else ''}"
+            f"{r.get('note', '')}"
+        )
 
     plot(rows, out.with_suffix(".png"))
     print(f"\nwrote {out} and {out.with_suffix('.png')}")

@@ -5,4 +5,5 @@ debris cloud to Piekutowski's feature velocities by gradient descent (optax), an
     python -m calibration fit [--resolution R] [--iterations N] [--start C_d,C_h] [--method adam|lbfgs] [--out DIR]
     python -m calibration synthetic [--truth C_d,C_h] [--start C_d,C_h]   # recover known values, small scene
 """
+
 from calibration.data import Measurements as Measurements, load as load

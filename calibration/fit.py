@@ -14,6 +14,7 @@ Standard errors (Gauss-Newton): with J = d v / d theta (3 x 2, forward mode) at 
 s^2 = sum_i w_i r_i^2 / (n - p) (n = 3 points, p = 2), Cov(theta) = s^2 (J^T W J)^-1; for
 C = exp(theta) the delta method gives se(C) = C se(theta).
 """
+
 from __future__ import annotations
 
 import time
@@ -41,15 +42,15 @@ def loss_fn(velocities, target, weights=None):
 
 @dataclass
 class FitResult:
-    theta: np.ndarray                        # (2,) best (log C_d, log C_h)
-    loss: float                              # at theta, (km/s)^2
-    residuals: np.ndarray                    # (3,) km/s at theta, model - experiment
-    history: list = field(default_factory=list)   # per iteration: dict(iteration, loss, C_d, C_h, grad (d loss /
+    theta: np.ndarray  # (2,) best (log C_d, log C_h)
+    loss: float  # at theta, (km/s)^2
+    residuals: np.ndarray  # (3,) km/s at theta, model - experiment
+    history: list = field(default_factory=list)  # per iteration: dict(iteration, loss, C_d, C_h, grad (d loss /
     #                                               d theta), grad_norm, residuals, evaluations, seconds)
     stopped: str = ""
     seconds: float = 0.0
     method: str = "adam"
-    evaluations: int = 0                     # value-and-gradient evaluations (line searches included)
+    evaluations: int = 0  # value-and-gradient evaluations (line searches included)
 
     @property
     def values(self):
@@ -118,8 +119,9 @@ def check_options(iterations, learning_rate, decay, tol, rtol, patience, method)
     _require(integer(iterations) and iterations >= 1, "iterations", iterations, "an integer >= 1")
     _require(method in METHODS, "method", method, " | ".join(METHODS))
     lr, d, t, rt = _real(learning_rate), _real(decay), _real(tol), _real(rtol)
-    _require(np.isfinite(lr) and lr > 0, "learning_rate", learning_rate,
-             "a finite number > 0 (Adam's step in log space)")
+    _require(
+        np.isfinite(lr) and lr > 0, "learning_rate", learning_rate, "a finite number > 0 (Adam's step in log space)"
+    )
     _require(0 < d <= 1, "decay", decay, "a number in (0, 1] (the learning rate's factor per iteration; 1: constant)")
     _require(np.isfinite(t) and t >= 0, "tol", tol, "a finite number >= 0 (km/s)^2")
     _require(np.isfinite(rt) and rt >= 0, "rtol", rtol, "a finite number >= 0")
@@ -131,8 +133,12 @@ def check_arrays(velocities, target, theta0, weights):
     shape of velocities(theta0) (found by tracing, without running it); weights None or finite,
     >= 0, not all 0, of target's shape. ValueError naming the argument otherwise."""
     th = _float_array(theta0)
-    _require(th is not None and th.shape == (2,) and np.all(np.isfinite(th)), "theta0", theta0,
-             "finite numbers of shape (2,): (log C_d, log C_h)")
+    _require(
+        th is not None and th.shape == (2,) and np.all(np.isfinite(th)),
+        "theta0",
+        theta0,
+        "finite numbers of shape (2,): (log C_d, log C_h)",
+    )
     tg = _float_array(target)
     _require(tg is not None and np.all(np.isfinite(tg)), "target", target, "finite numbers (km/s)")
     shape = jax.eval_shape(velocities, jnp.asarray(th, jnp.zeros(()).dtype)).shape
@@ -141,13 +147,29 @@ def check_arrays(velocities, target, theta0, weights):
     if weights is None:
         return tg, th, None
     w = _float_array(weights)
-    _require(w is not None and w.shape == tg.shape and np.all(np.isfinite(w) & (w >= 0)) and np.any(w > 0),
-             "weights", weights, f"None or finite numbers >= 0, not all 0, of target's shape {tg.shape}")
+    _require(
+        w is not None and w.shape == tg.shape and np.all(np.isfinite(w) & (w >= 0)) and np.any(w > 0),
+        "weights",
+        weights,
+        f"None or finite numbers >= 0, not all 0, of target's shape {tg.shape}",
+    )
     return tg, th, w
 
 
-def fit(velocities, target, theta0, iterations=30, learning_rate=0.15, decay=0.97, tol=1e-6, rtol=1e-4,
-        patience=5, weights=None, progress=True, method="adam"):
+def fit(
+    velocities,
+    target,
+    theta0,
+    iterations=30,
+    learning_rate=0.15,
+    decay=0.97,
+    tol=1e-6,
+    rtol=1e-4,
+    patience=5,
+    weights=None,
+    progress=True,
+    method="adam",
+):
     """Minimise the loss over theta from theta0 with `method` ('adam' or 'lbfgs').
     velocities: theta (2,) -> (3,) km/s (or any observables), differentiable; target: of its shape.
     learning_rate > 0 and decay in (0, 1] (Adam's rate at iteration k: learning_rate * decay^k);
@@ -163,6 +185,7 @@ def fit(velocities, target, theta0, iterations=30, learning_rate=0.15, decay=0.9
     bar = None
     if progress:
         from tqdm.auto import tqdm
+
         bar = tqdm(total=iterations, desc=f"fit ({method})", unit="it")
     start = time.perf_counter()
     result.stopped = f"iterations ({iterations})"
@@ -175,9 +198,19 @@ def fit(velocities, target, theta0, iterations=30, learning_rate=0.15, decay=0.9
             result.stopped = f"non-finite loss or gradient at iteration {it} (theta = {np.asarray(theta).tolist()})"
             break
         c = np.exp(np.asarray(theta))
-        result.history.append(dict(iteration=it, loss=loss_v, C_d=float(c[0]), C_h=float(c[1]),
-                                   grad=g_np.tolist(), grad_norm=float(np.linalg.norm(g_np)), residuals=np.asarray(r).tolist(),
-                                   evaluations=n_eval, seconds=time.perf_counter() - t0))
+        result.history.append(
+            dict(
+                iteration=it,
+                loss=loss_v,
+                C_d=float(c[0]),
+                C_h=float(c[1]),
+                grad=g_np.tolist(),
+                grad_norm=float(np.linalg.norm(g_np)),
+                residuals=np.asarray(r).tolist(),
+                evaluations=n_eval,
+                seconds=time.perf_counter() - t0,
+            )
+        )
         if loss_v < result.loss:
             result.theta, result.loss, result.residuals = np.asarray(theta), loss_v, np.asarray(r)
         if bar is not None:

@@ -6,6 +6,7 @@ in log space. `CloudModel.velocities(theta)` runs the fixed-length, checkpointed
 1 GiB, nested checkpointing beyond) and measures the features of
 `jaxmpm.features` over the later half of the outputs (after the cloud has formed).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -18,18 +19,18 @@ import numpy as np
 import jaxmpm
 from jaxmpm import features
 
-COARSE_RESOLUTION = 0.75            # the coarsest with >= 4 cells across the plate
+COARSE_RESOLUTION = 0.75  # the coarsest with >= 4 cells across the plate
 
 
 @dataclass(frozen=True)
 class CloudModel:
     scene: object
-    params: object                   # Params at the scene's defaults (C_d, C_h replaced by theta)
-    state: object                    # initial State
+    params: object  # Params at the scene's defaults (C_d, C_h replaced by theta)
+    state: object  # initial State
     n_steps: int
     t_end: float
     n_out: int = 12
-    first: int = 6                   # first output of the velocity fit (the later half)
+    first: int = 6  # first output of the velocity fit (the later half)
 
     @staticmethod
     def build(resolution=COARSE_RESOLUTION, fields=2, t_end=6e-6, n_out=12, max_c_h=1.0, safety=2.0, **scene_options):
@@ -40,8 +41,9 @@ class CloudModel:
         scene = jaxmpm.load_scene("debris_cloud", resolution=resolution, fields=fields, t_end=t_end, **scene_options)
         params = jaxmpm.default_params(scene)
         state = jaxmpm.init_state(scene, params)
-        n_steps = jaxmpm.plan_steps(scene, dataclasses.replace(params, c_h=jnp.asarray(max_c_h, params.c_h.dtype)),
-                                    state, t_end, safety=safety)
+        n_steps = jaxmpm.plan_steps(
+            scene, dataclasses.replace(params, c_h=jnp.asarray(max_c_h, params.c_h.dtype)), state, t_end, safety=safety
+        )
         return CloudModel(scene, params, state, n_steps, float(t_end), n_out, n_out // 2)
 
     def with_theta(self, theta):
@@ -59,15 +61,31 @@ class CloudModel:
 
     def velocities(self, theta, checkpoint="auto"):
         """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
-        _, hist = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
-                                  n_steps=self.n_steps, checkpoint=checkpoint, allow_short=True)   # see `reached`
+        _, hist = jaxmpm.simulate(
+            self.scene,
+            self.with_theta(theta),
+            self.state,
+            t_end=self.t_end,
+            n_out=self.n_out,
+            n_steps=self.n_steps,
+            checkpoint=checkpoint,
+            allow_short=True,
+        )  # see `reached`
         return self.velocities_of_history(hist)
 
     def reached(self, theta, progress=True):
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
-        final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.t_end, n_out=self.n_out,
-                                   n_steps=self.n_steps, allow_short=True, progress=progress)
+        final, _ = jaxmpm.simulate(
+            self.scene,
+            self.with_theta(theta),
+            self.state,
+            t_end=self.t_end,
+            n_out=self.n_out,
+            n_steps=self.n_steps,
+            allow_short=True,
+            progress=progress,
+        )
         return float(final.t)
 
     def velocities_batch(self, thetas, allow_short=False, progress=True):
@@ -78,8 +96,16 @@ class CloudModel:
         if self.scene.drag is not None:
             values["drag_coefficient"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
-        final, hist = jaxmpm.ensemble(self.scene, batch, self.state, t_end=self.t_end, n_out=self.n_out,
-                                      n_steps=self.n_steps, allow_short=allow_short, progress=progress)
+        final, hist = jaxmpm.ensemble(
+            self.scene,
+            batch,
+            self.state,
+            t_end=self.t_end,
+            n_out=self.n_out,
+            n_steps=self.n_steps,
+            allow_short=allow_short,
+            progress=progress,
+        )
         v = jax.vmap(self.velocities_of_history)(hist)
         short = final.t < self.t_end * (1 - 1e-6)
         return jnp.where(short[:, None], jnp.nan, v)

@@ -1,4 +1,5 @@
 """Figures of the C_h table and of a fit (matplotlib, written atomically, never over a file)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,6 +9,7 @@ import numpy as np
 
 def _save(fig, path):
     from jaxmpm.files import _atomic, check_new
+
     path = Path(path)
     check_new(path)
     with _atomic(path) as tmp:
@@ -18,6 +20,7 @@ def _save(fig, path):
 def ch_table(rows, path):
     """Feature velocity against C_h: jaxmpm and the seed as lines, the experiment as bands."""
     from matplotlib.figure import Figure
+
     fig = Figure(figsize=(9, 3.4), layout="constrained")
     axes = fig.subplots(1, 3, sharey=True)
     exp = next(r for r in rows if r["source"] == "experiment")["v"]
@@ -37,6 +40,7 @@ def ch_table(rows, path):
 def fit_report(result, out):
     """loss history, residuals beside the seed's best, and the landscape (when computed)."""
     from matplotlib.figure import Figure
+
     out = Path(out)
     paths = []
     h = result["history"]

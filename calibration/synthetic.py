@@ -17,6 +17,7 @@ Observables at t_end = 4 us (all smooth in theta = (log C_d, log C_h)):
 At (C_d, C_h) = (1, 0.15): 1.49, 1.034, 2.795; Jacobian rows (-0.55, 0.085), (0.006, 0.157),
 (-2.5e-4, -3.1e-3): condition of J^T J ~ 1e5, both parameters identifiable.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -28,7 +29,7 @@ import jaxmpm
 from jaxmpm.materials import library_material
 from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
 
-CELLS, H = 48, 0.25e-3              # 12 mm box
+CELLS, H = 48, 0.25e-3  # 12 mm box
 J0, EPS_PS0, SPEED = 0.99, 0.05, 300.0
 
 
@@ -36,14 +37,24 @@ def debris_in_water(drag=1.0, c_h=0.15, t_end=4e-6) -> Scene:
     """The scene of the module docstring (phases: debris in field 0; water in field 1)."""
     water_box = lambda a, b: Box((a,), (b,))
     return Scene(
-        name="debris_in_water", description="fragmented Al-2024 block moving through water (1D, two fields)",
-        grid=Grid(cells=(CELLS,), h=H), materials=(library_material("al2024"), library_material("water")),
+        name="debris_in_water",
+        description="fragmented Al-2024 block moving through water (1D, two fields)",
+        grid=Grid(cells=(CELLS,), h=H),
+        materials=(library_material("al2024"), library_material("water")),
         boundary=Boundary(faces=(("x_lo", "fixed"), ("x_hi", "fixed"))),
-        phases=(Phase("debris", "al2024", water_box(4e-3, 8e-3), velocity=(SPEED,), field=0, fraction=0.4),
-                Phase("water_in", "water", water_box(4e-3, 8e-3), field=1, fraction=0.6),
-                Phase("water_lo", "water", water_box(0.0, 4e-3), field=1),
-                Phase("water_hi", "water", water_box(8e-3, CELLS * H), field=1)),
-        drag=drag, c_h=c_h, fragmentation="plastic", t_end=t_end, n_out=4, cfl=0.3)
+        phases=(
+            Phase("debris", "al2024", water_box(4e-3, 8e-3), velocity=(SPEED,), field=0, fraction=0.4),
+            Phase("water_in", "water", water_box(4e-3, 8e-3), field=1, fraction=0.6),
+            Phase("water_lo", "water", water_box(0.0, 4e-3), field=1),
+            Phase("water_hi", "water", water_box(8e-3, CELLS * H), field=1),
+        ),
+        drag=drag,
+        c_h=c_h,
+        fragmentation="plastic",
+        t_end=t_end,
+        n_out=4,
+        cfl=0.3,
+    )
 
 
 def fragmented_precompressed(scene, params, state):
@@ -54,9 +65,13 @@ def fragmented_precompressed(scene, params, state):
     p0 = c["rho0"] * c["c0"] ** 2 * (1 - J0)
     d = state.x.shape[1]
     return dataclasses.replace(
-        state, volume=state.volume.at[sl].multiply(J0), F=state.F.at[sl].multiply(J0 ** (1 / d)),
+        state,
+        volume=state.volume.at[sl].multiply(J0),
+        F=state.F.at[sl].multiply(J0 ** (1 / d)),
         stress=state.stress.at[sl].set(-p0 * jnp.eye(d, dtype=state.stress.dtype)),
-        pressure=state.pressure.at[sl].set(p0), eps_ps=state.eps_ps.at[sl].set(EPS_PS0))
+        pressure=state.pressure.at[sl].set(p0),
+        eps_ps=state.eps_ps.at[sl].set(EPS_PS0),
+    )
 
 
 @dataclass(frozen=True)
@@ -78,8 +93,15 @@ class DebrisInWaterModel:
         return dataclasses.replace(self.params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
 
     def final(self, theta):
-        final, _ = jaxmpm.simulate(self.scene, self.with_theta(theta), self.state, t_end=self.scene.t_end, n_out=1,
-                                   n_steps=self.n_steps, checkpoint="auto")
+        final, _ = jaxmpm.simulate(
+            self.scene,
+            self.with_theta(theta),
+            self.state,
+            t_end=self.scene.t_end,
+            n_out=1,
+            n_steps=self.n_steps,
+            checkpoint="auto",
+        )
         return final
 
     def observables(self, theta):

@@ -1,4 +1,5 @@
 """`python -m jaxmpm`: the jaxmpm command line (see jaxmpm.cli)."""
+
 import sys
 
 from jaxmpm.cli import main

@@ -14,6 +14,7 @@ leading axis with `jax.sharding` (padded by repeating the last member, then trim
 several processes (`jax.distributed.initialize`), across all of theirs: every process runs the
 same call, and `jaxmpm.distributed.to_host` gathers the results.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,8 +39,10 @@ def stack(items):
     first = jax.tree.structure(items[0])
     for i, item in enumerate(items[1:], 1):
         if jax.tree.structure(item) != first:
-            raise ValueError(f"stack: item {i} has another structure than item 0 (e.g. Params of another scene: other "
-                             "phases or constants): allowed items of one scene")
+            raise ValueError(
+                f"stack: item {i} has another structure than item 0 (e.g. Params of another scene: other "
+                "phases or constants): allowed items of one scene"
+            )
         shapes = [np.shape(a) for a in jax.tree.leaves(item)]
         if shapes != [np.shape(a) for a in jax.tree.leaves(items[0])]:
             raise ValueError(f"stack: item {i} has leaves of other shapes than item 0: allowed items of one scene")
@@ -60,8 +63,10 @@ def member(batch, i: int):
 def batch_size(batch) -> int:
     sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(batch)}
     if len(sizes) != 1 or -1 in sizes:
-        raise ValueError(f"params_batch leaves have leading sizes {sorted(sizes)}: allowed one common "
-                         "leading (batch) axis on every leaf (build it with jaxmpm.batch.sweep or stack)")
+        raise ValueError(
+            f"params_batch leaves have leading sizes {sorted(sizes)}: allowed one common "
+            "leading (batch) axis on every leaf (build it with jaxmpm.batch.sweep or stack)"
+        )
     return sizes.pop()
 
 
@@ -81,8 +86,10 @@ def sweep(params: Params, **values) -> Params:
             raise ValueError(f"sweep: {k} = {v!r} is invalid: allowed a list of numbers") from None
         each = tuple(np.shape(getattr(params, k)))
         if v.ndim != 1 + len(each) or v.shape[1:] != each or v.shape[0] == 0:
-            raise ValueError(f"sweep: {k} has shape {v.shape}: allowed a list of values of shape {each} "
-                             f"({'numbers' if not each else f'{each[0]}-vectors'})")
+            raise ValueError(
+                f"sweep: {k} has shape {v.shape}: allowed a list of values of shape {each} "
+                f"({'numbers' if not each else f'{each[0]}-vectors'})"
+            )
         if n is not None and v.shape[0] != n:
             raise ValueError(f"sweep: {k} has {v.shape[0]} values, another field {n}: allowed equal lengths")
         n = v.shape[0]
@@ -115,16 +122,16 @@ def _as_member(i, check, *args):
         raise ValueError(str(e) if i is None else f"member {i}: {e}") from None
 
 
-REPLANS = 2   # how many times `ensemble` runs a batch again when its own plan of n_steps falls short
+REPLANS = 2  # how many times `ensemble` runs a batch again when its own plan of n_steps falls short
 
 
 @functools.lru_cache(maxsize=16)
 def _members_fn(scene, t_end, n_out, n_steps, checkpoint, progress):
     """The jitted, vmapped fixed-length run of one batch's members (compiled once per setting, not
     once per call)."""
+
     def one(p, s):
-        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint,
-                        _report=progress)
+        return simulate(scene, p, s, t_end=t_end, n_out=n_out, n_steps=n_steps, checkpoint=checkpoint, _report=progress)
 
     return jit(jax.vmap(one))
 
@@ -145,8 +152,20 @@ def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, 
     return final, history
 
 
-def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *, n_steps=None,
-             checkpoint="auto", shard=True, allow_short=False, progress=True, safety=1.25):
+def ensemble(
+    scene,
+    params_batch: Params,
+    state=None,
+    t_end=None,
+    n_out=None,
+    *,
+    n_steps=None,
+    checkpoint="auto",
+    shard=True,
+    allow_short=False,
+    progress=True,
+    safety=1.25,
+):
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 
@@ -171,7 +190,7 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
     n_steps = None if n_steps is None else count("n_steps", n_steps)
     B = batch_size(params_batch)
     members = [member(params_batch, i) for i in range(B)]
-    for i, p in enumerate(members):      # simulate runs under vmap, where it cannot check them
+    for i, p in enumerate(members):  # simulate runs under vmap, where it cannot check them
         _as_member(i, check_params, scene, p)
     if state is None:
         state = stack([initial_state(scene, p) for p in members])
@@ -184,15 +203,17 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         _as_member(i if batched_state else None, check_t_end, t_end, s.t)
     planned = n_steps is None
     if planned:
-        n_steps = max(plan_steps(scene, p, member(state, i) if batched_state else state, t_end, safety=safety)
-                      for i, p in enumerate(members))
+        n_steps = max(
+            plan_steps(scene, p, member(state, i) if batched_state else state, t_end, safety=safety)
+            for i, p in enumerate(members)
+        )
     if not batched_state:
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
-    final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B,
-                                  progress)
+    final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B, progress)
     from jaxmpm.distributed import to_host
+
     t0 = to_host(state.t)
-    reached = to_host(final.t)                  # gathered where the batch spans several processes
+    reached = to_host(final.t)  # gathered where the batch spans several processes
     short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
     for _ in range(REPLANS if planned else 0):
         if not short.size:
@@ -204,16 +225,21 @@ def ensemble(scene, params_batch: Params, state=None, t_end=None, n_out=None, *,
         if rate < 0.5:
             break
         replanned = int(math.ceil(1.1 * n_steps / rate))
-        warnings.warn(f"{scene.name}: the planned n_steps = {n_steps} reached only t = {reached[short].min():g} s of "
-                      f"t_end = {t_end:g} s (the CFL step shrank during the run): running the batch again with "
-                      f"n_steps = {replanned}; pass n_steps, or a safety above {safety:g}, to fix it", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"{scene.name}: the planned n_steps = {n_steps} reached only t = {reached[short].min():g} s of "
+            f"t_end = {t_end:g} s (the CFL step shrank during the run): running the batch again with "
+            f"n_steps = {replanned}; pass n_steps, or a safety above {safety:g}, to fix it",
+            RuntimeWarning,
+            stacklevel=2,
+        )
         n_steps = replanned
-        final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B,
-                                      progress)
+        final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B, progress)
         reached = to_host(final.t)
         short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))
     if short.size and not allow_short:
-        raise RuntimeError(f"{scene.name}: member(s) {short.tolist()} reached only t = {reached[short].tolist()} s of "
-                           f"t_end = {t_end:g} s in n_steps = {n_steps} (their CFL step shrank during the run): pass a "
-                           "larger n_steps, or allow_short=True and check final.t")
+        raise RuntimeError(
+            f"{scene.name}: member(s) {short.tolist()} reached only t = {reached[short].tolist()} s of "
+            f"t_end = {t_end:g} s in n_steps = {n_steps} (their CFL step shrank during the run): pass a "
+            "larger n_steps, or allow_short=True and check final.t"
+        )
     return final, history

@@ -18,6 +18,7 @@ exits with status 2; a run that becomes non-finite exits with status 1. Ctrl-C (
 stops a run after its current chunk with its restart file saved (exit status 130 or 143); a second
 one stops it at once.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,9 @@ def _pairs(items, flag: str) -> dict:
         if not sep or not key.strip():
             raise ValueError(f"{flag} {item!r} is invalid: allowed {flag} key=value (e.g. {flag} {example})")
         if key.strip() in out:
-            raise ValueError(f"{flag} {key.strip()} is given twice ({out[key.strip()]!r} and {value.strip()!r}): "
-                             "allowed once")
+            raise ValueError(
+                f"{flag} {key.strip()} is given twice ({out[key.strip()]!r} and {value.strip()!r}): allowed once"
+            )
         out[key.strip()] = parse_value(value.strip())
     return out
 
@@ -82,14 +84,20 @@ def _resume_file(where: str) -> Path:
     path = Path(where)
     if path.is_file():
         if not path.name.endswith(".restart.h5"):
-            raise ValueError(f"--resume {where!r} is invalid: allowed a folder with one *.restart.h5 file, or such a file")
+            raise ValueError(
+                f"--resume {where!r} is invalid: allowed a folder with one *.restart.h5 file, or such a file"
+            )
         return path
     if not path.is_dir():
-        raise ValueError(f"--resume {where!r} does not exist: allowed a folder with one *.restart.h5 file, or such a file")
+        raise ValueError(
+            f"--resume {where!r} does not exist: allowed a folder with one *.restart.h5 file, or such a file"
+        )
     files = sorted(path.glob("*.restart.h5"))
     if len(files) != 1:
-        raise ValueError(f"--resume {where!r}: expected one *.restart.h5 file there, found {[f.name for f in files]}"
-                         + (f" (name one: --resume {path / files[0].name})" if files else ""))
+        raise ValueError(
+            f"--resume {where!r}: expected one *.restart.h5 file there, found {[f.name for f in files]}"
+            + (f" (name one: --resume {path / files[0].name})" if files else "")
+        )
     return files[0]
 
 
@@ -99,14 +107,25 @@ def _check_run_args(args) -> None:
     from jaxmpm.scenes import DEFAULT_SCENE
 
     if args.resume:
-        given = [flag for flag, value in (("a scene", args.scene is not None), ("--out", args.out is not None),
-                                          ("--t-end", args.t_end is not None),
-                                          ("--n-out", args.n_out is not None), ("--set", bool(args.set)),
-                                          ("--opt", bool(args.opt)), ("--debug", args.debug)) if value]
+        given = [
+            flag
+            for flag, value in (
+                ("a scene", args.scene is not None),
+                ("--out", args.out is not None),
+                ("--t-end", args.t_end is not None),
+                ("--n-out", args.n_out is not None),
+                ("--set", bool(args.set)),
+                ("--opt", bool(args.opt)),
+                ("--debug", args.debug),
+            )
+            if value
+        ]
         if given:
-            raise ValueError(f"{', '.join(given)} is invalid with --resume: the run continues with the scene, t_end and "
-                             "outputs of its restart file, in DIR (allowed with --resume: --overwrite, --no-progress, "
-                             "--restart-every, --x64)")
+            raise ValueError(
+                f"{', '.join(given)} is invalid with --resume: the run continues with the scene, t_end and "
+                "outputs of its restart file, in DIR (allowed with --resume: --overwrite, --no-progress, "
+                "--restart-every, --x64)"
+            )
         return
     args.scene = DEFAULT_SCENE if args.scene is None else args.scene
     args.out = "out" if args.out is None else args.out
@@ -164,8 +183,11 @@ def _remove_stale_temporaries(out: Path) -> None:
 
     gone = remove_stale_temporaries(out)
     if gone:
-        print(f"removed {len(gone)} temporary file{'s' if len(gone) > 1 else ''} that earlier runs killed while "
-              f"writing left in {out}: {', '.join(gone)}", flush=True)
+        print(
+            f"removed {len(gone)} temporary file{'s' if len(gone) > 1 else ''} that earlier runs killed while "
+            f"writing left in {out}: {', '.join(gone)}",
+            flush=True,
+        )
 
 
 def cmd_run(args) -> int:
@@ -185,7 +207,7 @@ def cmd_run(args) -> int:
     except BaseException:
         remove_empty()
         raise
-    if code != 0:           # interrupted (130): nothing saved yet leaves no folder
+    if code != 0:  # interrupted (130): nothing saved yet leaves no folder
         remove_empty()
     return code
 
@@ -195,28 +217,34 @@ def _run(args) -> int:
 
     if args.resume:
         path = _resume_file(args.resume)
-        from jaxmpm.restart import dtype     # names the file if it is not a complete restart file
+        from jaxmpm.restart import dtype  # names the file if it is not a complete restart file
+
         if dtype(path) == "float64":
             args.x64 = True
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     if not args.no_cache:
         from jaxmpm import compile_cache
+
         compile_cache.enable()
     import jaxmpm
     from jaxmpm import diagnostics, io, restart
     from jaxmpm.scenes import initial_state
 
     if args.restart_every < 0:
-        raise ValueError(f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)")
+        raise ValueError(
+            f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)"
+        )
     if args.resume:
         saved = restart.load(path)
         scene = saved["scene"]
         out = path.parent
         if saved["next_out"] == saved["n_out"]:
-            raise ValueError(f"--resume {args.resume}: the run saved in {path} is complete (t_end = {saved['t_end']:g} s "
-                             f"reached, {saved['n_out']} outputs): nothing to resume; its outputs are written beside "
-                             f"it, as {scene.name}.h5 (run it again: jaxmpm run with --overwrite)")
+            raise ValueError(
+                f"--resume {args.resume}: the run saved in {path} is complete (t_end = {saved['t_end']:g} s "
+                f"reached, {saved['n_out']} outputs): nothing to resume; its outputs are written beside "
+                f"it, as {scene.name}.h5 (run it again: jaxmpm run with --overwrite)"
+            )
     else:
         scene = _load(args.scene, _pairs(args.set, "--set"), _pairs(args.opt, "--opt"))
         out = Path(args.out)
@@ -226,17 +254,20 @@ def _run(args) -> int:
     xdmf = io.xdmf_path(h5)
     rfile = out / f"{scene.name}.restart.h5"
     if not args.resume and not args.overwrite and rfile.is_file() and not h5.exists():
-        raise FileExistsError(f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
-                              f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
-                              "(which discards it)")
+        raise FileExistsError(
+            f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
+            f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
+            "(which discards it)"
+        )
     _remove_stale_temporaries(out)
     io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
     if args.resume:
         print(f"resuming {scene.name} from {path}", flush=True)
         try:
-            scene, params, final, history = restart.resume(path, progress=not args.no_progress,
-                                                           restart_every=args.restart_every)
+            scene, params, final, history = restart.resume(
+                path, progress=not args.no_progress, restart_every=args.restart_every
+            )
         except KeyboardInterrupt as e:
             return _stopped(e, f"{path} holds the progress it saved last: continue with `jaxmpm run --resume {path}`")
         start = diagnostics.summary(scene, params, jax.tree.map(lambda a: None if a is None else a[0], history))
@@ -247,39 +278,63 @@ def _run(args) -> int:
         _check_size(scene, n_out, args.x64)
         state = initial_state(scene, params)
         phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
-        print(f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
-              f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
-              f"{state.x.dtype}, into {h5}", flush=True)
+        print(
+            f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
+            f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
+            f"{state.x.dtype}, into {h5}",
+            flush=True,
+        )
         start = diagnostics.summary(scene, params, state)
         itemsize = state.x.dtype.itemsize
-        io.check_space(out, io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
-                       + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0))
+        io.check_space(
+            out,
+            io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
+            + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0),
+        )
         try:
-            final, history = jaxmpm.simulate(scene, params, state, t_end=t_end, n_out=n_out,
-                                             progress=not args.no_progress,
-                                             restart_file=str(rfile) if args.restart_every else None,
-                                             restart_every=args.restart_every or 1, debug=args.debug,
-                                             overwrite=args.overwrite, yes=args.yes, max_minutes=args.max_minutes,
-                                             announce=lambda line: print(line, flush=True))
+            final, history = jaxmpm.simulate(
+                scene,
+                params,
+                state,
+                t_end=t_end,
+                n_out=n_out,
+                progress=not args.no_progress,
+                restart_file=str(rfile) if args.restart_every else None,
+                restart_every=args.restart_every or 1,
+                debug=args.debug,
+                overwrite=args.overwrite,
+                yes=args.yes,
+                max_minutes=args.max_minutes,
+                announce=lambda line: print(line, flush=True),
+            )
         except KeyboardInterrupt as e:
-            return _stopped(e, f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
-                            if args.restart_every and rfile.is_file() else "nothing was saved (no restart file yet)")
+            return _stopped(
+                e,
+                f"its progress is saved in {rfile}: continue with `jaxmpm run --resume {out}`"
+                if args.restart_every and rfile.is_file()
+                else "nothing was saved (no restart file yet)",
+            )
         except FloatingPointError as e:
             if args.restart_every and rfile.is_file():
-                e.args = (f"{e}\n{rfile} holds the last state saved before the failure: resuming it meets the same "
-                          "failure; fix the scene and start again with --overwrite",)
+                e.args = (
+                    f"{e}\n{rfile} holds the last state saved before the failure: resuming it meets the same "
+                    "failure; fix the scene and start again with --overwrite",
+                )
             raise
     jax.block_until_ready(final)
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
     io.write(h5, scene, history, params=params, overwrite=args.overwrite)
     from jaxmpm.plot import plot_run
+
     plot_run(scene, history, png, field=args.plot_field, params=params, overwrite=args.overwrite)
     print(f"done in {wall:.3g} s wall time (compilation included)")
     w = 26
     print(f"  {'':<{w}}{'start':>14}{'end':>14}")
     print(f"  {'t (s)':<{w}}{start['t']:>14.6g}{end['t']:>14.6g}")
-    print(f"  {'mass (' + io.units('mass', scene.dim, scene.axisymmetric) + ')':<{w}}{start['mass']:>14.6g}{end['mass']:>14.6g}")
+    print(
+        f"  {'mass (' + io.units('mass', scene.dim, scene.axisymmetric) + ')':<{w}}{start['mass']:>14.6g}{end['mass']:>14.6g}"
+    )
     for k in ("kinetic", "internal", "total_energy"):
         name = "total, with gravity" if k == "total_energy" and scene.gravity is not None else k.replace("_energy", "")
         label = f"{name} ({io.units(k, scene.dim, scene.axisymmetric)})"
@@ -314,7 +369,9 @@ def cmd_scenes(args) -> int:
         if args.verbose or args.name is not None:
             print(format_scene_options(name))
     if not (args.verbose or args.name is not None):
-        print("\n`jaxmpm scenes NAME` (or --verbose): the options of a scene (--opt name=value) with defaults and ranges")
+        print(
+            "\n`jaxmpm scenes NAME` (or --verbose): the options of a scene (--opt name=value) with defaults and ranges"
+        )
     return 0
 
 
@@ -330,8 +387,14 @@ def format_scene_options(name: str) -> str:
 
 
 def cmd_materials(args) -> int:
-    from jaxmpm.materials.library import (USED_TABLES, constant_origins, default_model, known_keys, library_table,
-                                          table_provenance)
+    from jaxmpm.materials.library import (
+        USED_TABLES,
+        constant_origins,
+        default_model,
+        known_keys,
+        library_table,
+        table_provenance,
+    )
     from jaxmpm.materials.models import model_of
 
     if args.key is None and args.model is not None:
@@ -366,8 +429,14 @@ def cmd_materials(args) -> int:
         source, ok, checks = prov[sub]
         print(f"  {sub} [{'verified' if ok else 'not verified'}]: {source}")
         if "note" in checks:
-            print(textwrap.fill(f"note ({checks.get('checked', '')}): {' '.join(checks['note'].split())}", 100,
-                                initial_indent="    ", subsequent_indent="    "))
+            print(
+                textwrap.fill(
+                    f"note ({checks.get('checked', '')}): {' '.join(checks['note'].split())}",
+                    100,
+                    initial_indent="    ",
+                    subsequent_indent="    ",
+                )
+            )
     others = [sub for sub in prov if sub not in USED_TABLES]
     if others:
         print(f"also in the table, not read by the models (alternative fits): {', '.join(others)}")
@@ -396,51 +465,95 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"jaxmpm {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    run = sub.add_parser("run", help="run a scene and write HDF5 + XDMF + PNG",
-                         description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png, and "
-                                     "<name>.restart.h5 for --resume.")
-    run.add_argument("scene", nargs="?", default=None,
-                     help=f"built-in scene name (see `jaxmpm scenes`) or a .toml file (default: {DEFAULT_SCENE})")
+    run = sub.add_parser(
+        "run",
+        help="run a scene and write HDF5 + XDMF + PNG",
+        description="Run a scene to t_end; write <out>/<name>.h5, .xdmf (ParaView) and .png, and "
+        "<name>.restart.h5 for --resume.",
+    )
+    run.add_argument(
+        "scene",
+        nargs="?",
+        default=None,
+        help=f"built-in scene name (see `jaxmpm scenes`) or a .toml file (default: {DEFAULT_SCENE})",
+    )
     run.add_argument("--out", default=None, help="output folder (default: out)")
     run.add_argument("--t-end", type=float, help="end time, s (default: the scene's t_end)")
     run.add_argument("--n-out", type=int, help="number of outputs after the initial one (default: the scene's)")
-    run.add_argument("--set", action="append", metavar="KEY=VALUE",
-                     help="override a scene-file key, e.g. --set 'grid.cells=[32,32]' --set 'phase.disk_a.velocity=[0.2,0.2]' (quoted for the shell)")
-    run.add_argument("--opt", action="append", metavar="NAME=VALUE",
-                     help="option of a built-in scene's builder, e.g. --opt resolution=0.5")
+    run.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a scene-file key, e.g. --set 'grid.cells=[32,32]' --set 'phase.disk_a.velocity=[0.2,0.2]' (quoted for the shell)",
+    )
+    run.add_argument(
+        "--opt",
+        action="append",
+        metavar="NAME=VALUE",
+        help="option of a built-in scene's builder, e.g. --opt resolution=0.5",
+    )
     run.add_argument("--overwrite", action="store_true", help="replace existing output files")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--x64", action="store_true", help="double precision (float64)")
-    run.add_argument("--no-cache", action="store_true", help="no persistent compilation cache (default: on, in "
-                     "~/.cache/jaxmpm/xla or $JAXMPM_CACHE_DIR; JAXMPM_NO_CACHE=1 also turns it off)")
-    run.add_argument("--debug", action="store_true",
-                     help="check every step under checkify (slower): stop at the first non-finite or out-of-grid "
-                          "particle, or the first NaN, naming the step")
-    run.add_argument("--restart-every", type=int, default=20, metavar="N",
-                     help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)")
-    run.add_argument("--plot-field", choices=("speed", "pressure", "damage", "phase"), default="speed",
-                     help="the field the PNG shows at several times, with a colorbar, above energy against time "
-                          "(default: speed)")
-    run.add_argument("--yes", action="store_true",
-                     help="run even when the estimate after the first chunk passes --max-minutes")
-    run.add_argument("--max-minutes", type=float, default=None, metavar="M",
-                     help="a run estimated (after its first chunk) to take longer stops before saving anything unless "
-                          "--yes (default: $JAXMPM_MAX_MINUTES, else 60)")
-    run.add_argument("--resume", metavar="DIR",
-                     help="continue the run whose restart file is in DIR, or the one named (DIR/NAME.restart.h5: "
-                          "where DIR holds several); bit-identical to an uninterrupted run")
+    run.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="no persistent compilation cache (default: on, in "
+        "~/.cache/jaxmpm/xla or $JAXMPM_CACHE_DIR; JAXMPM_NO_CACHE=1 also turns it off)",
+    )
+    run.add_argument(
+        "--debug",
+        action="store_true",
+        help="check every step under checkify (slower): stop at the first non-finite or out-of-grid "
+        "particle, or the first NaN, naming the step",
+    )
+    run.add_argument(
+        "--restart-every",
+        type=int,
+        default=20,
+        metavar="N",
+        help="save <out>/<name>.restart.h5 every N chunks and at each output (default 20; 0: never)",
+    )
+    run.add_argument(
+        "--plot-field",
+        choices=("speed", "pressure", "damage", "phase"),
+        default="speed",
+        help="the field the PNG shows at several times, with a colorbar, above energy against time (default: speed)",
+    )
+    run.add_argument(
+        "--yes", action="store_true", help="run even when the estimate after the first chunk passes --max-minutes"
+    )
+    run.add_argument(
+        "--max-minutes",
+        type=float,
+        default=None,
+        metavar="M",
+        help="a run estimated (after its first chunk) to take longer stops before saving anything unless "
+        "--yes (default: $JAXMPM_MAX_MINUTES, else 60)",
+    )
+    run.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="continue the run whose restart file is in DIR, or the one named (DIR/NAME.restart.h5: "
+        "where DIR holds several); bit-identical to an uninterrupted run",
+    )
     run.set_defaults(func=cmd_run)
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes (with NAME or --verbose: their options)")
-    scenes.add_argument("name", nargs="?", default=None, help="a built-in scene: list its options with defaults and ranges")
+    scenes.add_argument(
+        "name", nargs="?", default=None, help="a built-in scene: list its options with defaults and ranges"
+    )
     scenes.add_argument("--verbose", "-v", action="store_true", help="every scene's options with defaults and ranges")
     scenes.set_defaults(func=cmd_scenes)
 
-    materials = sub.add_parser("materials", help="list the material library, or one key's constants and sources",
-                               description="Without KEY: the library's keys, default models and which of the "
-                                           "sub-tables they read await verification. With KEY: every constant of "
-                                           "the model with its unit, the sub-table it is read from, its source and "
-                                           "whether every number of that sub-table was read in that source.")
+    materials = sub.add_parser(
+        "materials",
+        help="list the material library, or one key's constants and sources",
+        description="Without KEY: the library's keys, default models and which of the "
+        "sub-tables they read await verification. With KEY: every constant of "
+        "the model with its unit, the sub-table it is read from, its source and "
+        "whether every number of that sub-table was read in that source.",
+    )
     materials.add_argument("key", nargs="?", default=None, help="a library key (e.g. al2024)")
     materials.add_argument("--model", help="another model kind than the key's default, e.g. hypoelastic")
     materials.set_defaults(func=cmd_materials)
@@ -464,7 +577,7 @@ def main(argv=None) -> int:
     except FloatingPointError as e:
         print(f"error: the run failed: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt as e:      # outside the run's loop (planning, compiling, writing the outputs)
+    except KeyboardInterrupt as e:  # outside the run's loop (planning, compiling, writing the outputs)
         return _stopped(e, "the command did not finish (outputs are written whole or not at all)")
 
 

@@ -15,6 +15,7 @@ and the stencil contractions (`bilinear_contraction`) then compute their tangent
 which reverse mode transposes to a broadcast (DDMP's gradients 1.6x faster than with the unrolled
 form, which stays the forward form).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -25,7 +26,7 @@ import os
 import jax
 import numpy as np
 
-CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}   # empty: no YNNPACK fusions
+CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}  # empty: no YNNPACK fusions
 # Which forms code traced now takes. A JAX user context: JAX keys its caches of traces, lowerings
 # and executables on it (jit's, and those of checkpoint, custom_jvp, scan, keyed by function), so a
 # trace made in one form is never reused in the other. With a plain context variable a reduction
@@ -35,8 +36,11 @@ CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}   # empty: no YNNPACK
 # A jax without user contexts compiles with XLA's defaults (`compiler_options`), so that no
 # reduction form is ever traced for `jit`; native_reductions_forms then sets a context variable.
 _USER_CONTEXTS = hasattr(jax, "make_user_context")
-_NATIVE_REDUCTIONS = (jax.make_user_context(False) if _USER_CONTEXTS
-                      else contextvars.ContextVar("jaxmpm_native_reductions", default=False))
+_NATIVE_REDUCTIONS = (
+    jax.make_user_context(False)
+    if _USER_CONTEXTS
+    else contextvars.ContextVar("jaxmpm_native_reductions", default=False)
+)
 
 
 def native_reductions() -> bool:
@@ -67,6 +71,7 @@ def _traced_natively(fun):
     def traced(*args, **kw):
         with native_reductions_forms(True):
             return fun(*args, **kw)
+
     return traced
 
 
@@ -77,6 +82,7 @@ def bilinear_contraction(unrolled, reduced):
     reduction transposes to a broadcast where the unrolled form transposes to a padded copy of the
     other argument per slice (DDMP's gradients 1.7x slower). Under a plain jax.jit, where YNNPACK
     would take the reductions, both are unrolled."""
+
     @jax.custom_jvp
     def f(x, A):
         return unrolled(x, A)
@@ -102,7 +108,7 @@ def compiler_options() -> dict | None:
         return None
     try:
         jax.jit(lambda x: x + 1, compiler_options=CPU_OPTIONS).lower(np.float32(0.0)).compile()
-    except Exception:       # an XLA without the option (or a jax without compiler_options)
+    except Exception:  # an XLA without the option (or a jax without compiler_options)
         return None
     return dict(CPU_OPTIONS)
 
@@ -119,7 +125,9 @@ def jit(fun=None, **kwargs):
     opts = compiler_options()
     if opts is None:
         return plain
-    fast = jax.jit(_traced_natively(fun), **{**kwargs, "compiler_options": {**opts, **kwargs.get("compiler_options", {})}})
+    fast = jax.jit(
+        _traced_natively(fun), **{**kwargs, "compiler_options": {**opts, **kwargs.get("compiler_options", {})}}
+    )
 
     @functools.wraps(fun)
     def call(*args, **kw):

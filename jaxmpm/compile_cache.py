@@ -8,6 +8,7 @@ call `enable()` from a script to opt in. A cached program is keyed by JAX on the
 compile options, the backend and the versions of jax and jaxlib, so a changed step or an upgrade
 compiles afresh; the folder may be deleted at any time.
 """
+
 from __future__ import annotations
 
 import os
@@ -17,7 +18,7 @@ from pathlib import Path
 ENV_OFF = "JAXMPM_NO_CACHE"
 ENV_DIR = "JAXMPM_CACHE_DIR"
 ENV_MIN = "JAXMPM_CACHE_MIN_COMPILE_S"
-MIN_COMPILE_S = 0.5    # programs that compile faster than this are not written (jax's default: 1 s)
+MIN_COMPILE_S = 0.5  # programs that compile faster than this are not written (jax's default: 1 s)
 
 
 def cache_dir() -> Path:
@@ -43,8 +44,11 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        warnings.warn(f"compilation cache off: cannot create {folder} ({e.strerror or e}); set {ENV_DIR} to a "
-                      f"writable folder, or {ENV_OFF}=1", stacklevel=2)
+        warnings.warn(
+            f"compilation cache off: cannot create {folder} ({e.strerror or e}); set {ENV_DIR} to a "
+            f"writable folder, or {ENV_OFF}=1",
+            stacklevel=2,
+        )
         return None
     import jax
 

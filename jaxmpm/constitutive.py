@@ -4,6 +4,7 @@ internal energy.
 
 Shapes: N particles, d dimensions; SI units.
 """
+
 from __future__ import annotations
 
 import jax
@@ -34,8 +35,9 @@ def fragmentation_gate(lay, state):
     scene = lay.scene
     if scene.fragmentation == "plastic":
         return jnp.ones_like(state.eps_ps)
-    gated = np.concatenate([np.full(sl.stop - sl.start, fails(scene.material(p).model), bool)
-                            for p, sl in zip(scene.phases, lay.slices)])
+    gated = np.concatenate(
+        [np.full(sl.stop - sl.start, fails(scene.material(p).model), bool) for p, sl in zip(scene.phases, lay.slices)]
+    )
     if not gated.any():
         return jnp.ones_like(state.eps_ps)
     return jnp.where(jnp.asarray(gated), state.damage, 1.0)
@@ -88,8 +90,12 @@ def pressure(lay, state):
     if all(model_of(scene.material(p).model).hydro for p in scene.phases):
         return state.pressure
     tr = -jnp.trace(state.stress, axis1=1, axis2=2) / state.stress.shape[-1]
-    return jnp.concatenate([state.pressure[sl] if model_of(scene.material(p).model).hydro else tr[sl]
-                            for p, sl in zip(scene.phases, lay.slices)])
+    return jnp.concatenate(
+        [
+            state.pressure[sl] if model_of(scene.material(p).model).hydro else tr[sl]
+            for p, sl in zip(scene.phases, lay.slices)
+        ]
+    )
 
 
 def force_stress(lay, params, state):
@@ -101,7 +107,9 @@ def force_stress(lay, params, state):
         return state.stress
     d = state.stress.shape[-1]
     p = pressure(lay, state)
-    return state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * jnp.eye(d, dtype=state.stress.dtype)
+    return state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * jnp.eye(
+        d, dtype=state.stress.dtype
+    )
 
 
 def model_groups(lay):
@@ -141,8 +149,11 @@ def per_model(lay, params, fn, *arrays):
         else:
             sizes = [lay.slices[i].stop - lay.slices[i].start for i in members]
             consts = [params.phases[scene.phases[i].name] for i in members]
-            c = {k: jnp.concatenate([jnp.broadcast_to(jnp.asarray(ci[k]), (n,)) for ci, n in zip(consts, sizes)])
-                 for k in consts[0] if all(k in ci for ci in consts)}       # the kind's constants: every phase has them
+            c = {
+                k: jnp.concatenate([jnp.broadcast_to(jnp.asarray(ci[k]), (n,)) for ci, n in zip(consts, sizes)])
+                for k in consts[0]
+                if all(k in ci for ci in consts)
+            }  # the kind's constants: every phase has them
             present = [i for i, a in enumerate(args) if a is not None]
 
             def one(c, *xs, model=model, present=present, n_args=len(args)):  # noqa: B008 (bound at definition)
@@ -170,10 +181,22 @@ def bulk_modulus_and_wave_speed(lay, params, state):
     density kept 4 G / (3 rho) ~ (500 km/s)^2 and the CFL step of the debris cloud collapsed."""
     rho = state.mass / state.volume
     dim = lay.scene.material_dim
-    K, cw = per_model(lay, params, lambda m, c, r, e: (m.bulk_modulus(c, r, e, dim) * jnp.ones_like(r),
-                                                       m.wave_speed(c, r, e, dim) * jnp.ones_like(r)), rho, state.energy)
-    hydro = np.concatenate([np.full(sl.stop - sl.start, model_of(lay.scene.material(p).model).hydro, bool)
-                            for p, sl in zip(lay.scene.phases, lay.slices)])
+    K, cw = per_model(
+        lay,
+        params,
+        lambda m, c, r, e: (
+            m.bulk_modulus(c, r, e, dim) * jnp.ones_like(r),
+            m.wave_speed(c, r, e, dim) * jnp.ones_like(r),
+        ),
+        rho,
+        state.energy,
+    )
+    hydro = np.concatenate(
+        [
+            np.full(sl.stop - sl.start, model_of(lay.scene.material(p).model).hydro, bool)
+            for p, sl in zip(lay.scene.phases, lay.slices)
+        ]
+    )
     if hydro.any():
         cb2 = K / rho
         shear = jnp.maximum(cw * cw - cb2, 0.0)
@@ -182,7 +205,7 @@ def bulk_modulus_and_wave_speed(lay, params, state):
     return K, cw
 
 
-EQUILIBRATING_STRAIN_MAX = 1.0     # |(p - p_amb) / K| bound of the closure (E8), log volume strain
+EQUILIBRATING_STRAIN_MAX = 1.0  # |(p - p_amb) / K| bound of the closure (E8), log volume strain
 
 
 def material_volume_rate(lay, params, state, L, dt, p_amb):
@@ -227,7 +250,9 @@ def artificial_viscosity(lay, params, state, rho_new, trD):
 def viscous_particles(lay):
     """(N,) static bool: whether each particle's phase takes the artificial viscosity
     (scene.viscous_phases)."""
-    return np.concatenate([np.full(sl.stop - sl.start, on, bool) for on, sl in zip(lay.scene.viscous_phases, lay.slices)])
+    return np.concatenate(
+        [np.full(sl.stop - sl.start, on, bool) for on, sl in zip(lay.scene.viscous_phases, lay.slices)]
+    )
 
 
 def constitutive(lay, params, state, L, dt, p_amb=None):
@@ -254,8 +279,16 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
         if not all(scene.viscous_phases):
             q = jnp.where(jnp.asarray(viscous_particles(lay)), q, 0.0)
     work = dt * 0.5 * (vol + state.volume) / state.mass
-    mp = MatPoint(state.F, state.stress, pressure(lay, state), state.energy, state.eps_ps, state.damage,
-                  state.mass / state.volume, rho_new)
+    mp = MatPoint(
+        state.F,
+        state.stress,
+        pressure(lay, state),
+        state.energy,
+        state.eps_ps,
+        state.damage,
+        state.mass / state.volume,
+        rho_new,
+    )
 
     def update(model, c, L_mat, D, work, q, gate, *mp):
         if gate is None:
@@ -263,12 +296,12 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
         elif tensile:
             m0 = MatPoint(*mp)
 
-            def intact(eps):      # 1 - D after a plastic strain eps, counted where in tension
+            def intact(eps):  # 1 - D after a plastic strain eps, counted where in tension
                 return 1.0 - tensile_fragment_fraction(params.c_h, m0.damage, gate * jnp.maximum(eps - m0.eps_ps, 0.0))
 
-            def alpha_of(eps):    # the pressure's factor: alpha in tension, 1 in compression
+            def alpha_of(eps):  # the pressure's factor: alpha in tension, 1 in compression
                 return jnp.where(m0.pressure < 0, intact(eps), 1.0)
-        else:               # the gate of the step's start: the damage the force and volume rate used
+        else:  # the gate of the step's start: the damage the force and volume rate used
             alpha_of = lambda eps: 1.0 - gate * jnp.tanh(eps / params.c_h)
         return tuple(model.update(c, MatPoint(*mp), L_mat, D, dt, work, q, alpha_of))
 
@@ -276,5 +309,12 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     damage = new.damage
     if tensile:
         damage = tensile_fragment_fraction(params.c_h, damage, gate * jnp.maximum(new.eps_ps - state.eps_ps, 0.0))
-    return dict(F=new.F, stress=new.stress, volume=vol, energy=new.energy, eps_ps=new.eps_ps,
-                pressure=new.pressure, damage=damage)
+    return dict(
+        F=new.F,
+        stress=new.stress,
+        volume=vol,
+        energy=new.energy,
+        eps_ps=new.eps_ps,
+        pressure=new.pressure,
+        damage=damage,
+    )

@@ -16,6 +16,7 @@ step (benchmarks/throughput.py); as sums they fuse into one loop over the cells.
 unrolled sums of slices (the fastest forward); their tangents, which reverse mode transposes, are
 reductions when traced for `jaxmpm.jit` (`compile.bilinear_contraction`).
 """
+
 from __future__ import annotations
 
 import functools
@@ -33,7 +34,7 @@ from jaxmpm.state import stencil_offsets
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
 _P2 = np.array([[1 / 3, 1 / 6], [1 / 6, 1 / 3]])
 _P3 = np.array([[[1 / 4, 1 / 12], [1 / 12, 1 / 12]], [[1 / 12, 1 / 12], [1 / 12, 1 / 4]]])
-_D3 = _P2[:, :, None] * np.array([-1.0, 1.0])[None, None, :]   # integral phi_a phi_b phi_c'
+_D3 = _P2[:, :, None] * np.array([-1.0, 1.0])[None, None, :]  # integral phi_a phi_b phi_c'
 
 
 def _weighted_1d():
@@ -115,8 +116,8 @@ def _add_corners_jvp(dim, primals, tangents):
 
 
 def _add_corners_loop(c, dim):
-    K, cells = c.shape[0], c.shape[1:1 + dim]
-    extra = tuple(c.shape[2 + dim:])
+    K, cells = c.shape[0], c.shape[1 : 1 + dim]
+    extra = tuple(c.shape[2 + dim :])
     nodes = tuple(n + 1 for n in cells)
     offsets = jnp.asarray(stencil_offsets(dim, 2))
 
@@ -124,9 +125,13 @@ def _add_corners_loop(c, dim):
         zero = jnp.zeros((), jnp.int32)
         start = (zero,) + tuple(offsets[j, k] for k in range(dim)) + (zero,) * len(extra)
         slab = jax.lax.dynamic_slice(out, start, (K,) + tuple(cells) + extra)
-        return jax.lax.dynamic_update_slice(out, slab + jax.lax.dynamic_index_in_dim(c, j, 1 + dim, keepdims=False), start)
+        return jax.lax.dynamic_update_slice(
+            out, slab + jax.lax.dynamic_index_in_dim(c, j, 1 + dim, keepdims=False), start
+        )
 
-    return jax.lax.fori_loop(0, 2**dim, add, jnp.zeros_like(c, shape=(K,) + nodes + extra))    # like c: its device variance too
+    return jax.lax.fori_loop(
+        0, 2**dim, add, jnp.zeros_like(c, shape=(K,) + nodes + extra)
+    )  # like c: its device variance too
 
 
 def _add_corners_padded(c, dim):
@@ -134,7 +139,7 @@ def _add_corners_padded(c, dim):
     offset: c (K, *cells, 2^d, ...) -> (K, *nodes, ...), in c's units; linear in c, and transposed
     by JAX into the slices of `corners`."""
     n_extra = c.ndim - 2 - dim
-    pieces = jax.lax.split(c, (1,) * 2**dim, axis=1 + dim)     # transposed: one concatenate
+    pieces = jax.lax.split(c, (1,) * 2**dim, axis=1 + dim)  # transposed: one concatenate
     out = 0
     for piece, o in zip(pieces, stencil_offsets(dim, 2)):
         widths = ((0, 0),) + tuple((int(o[k]), 1 - int(o[k])) for k in range(dim)) + ((0, 0),) * n_extra
@@ -153,7 +158,9 @@ def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
         if axisymmetric and k == 0:
             h = grid.h
             r = grid.origin[0] + h * np.arange(n)
-            f = np.where(np.arange(n) > 0, h * r / 2 - h**2 / 6, 0.0) + np.where(np.arange(n) < n - 1, h * r / 2 + h**2 / 6, 0.0)
+            f = np.where(np.arange(n) > 0, h * r / 2 - h**2 / 6, 0.0) + np.where(
+                np.arange(n) < n - 1, h * r / 2 + h**2 / 6, 0.0
+            )
         shape = [1] * grid.dim
         shape[k] = n
         vol = vol * f.reshape(shape)
@@ -168,18 +175,19 @@ class Window:
     (R2) and its operators are zero there: computing them on the block gives the whole grid's
     values (round-off equal). When some field's particles span more than the block, `fits` is
     False and the operators are computed on the whole grid instead (`lax.cond`)."""
-    size: tuple         # cells per axis of every field's block (static)
-    nodes: tuple        # the grid's nodes per axis (static)
-    origin: jax.Array   # (K, d) int32: the first cell of each field's block
-    fits: jax.Array     # () bool: every field's occupied cells lie in its block
-    dense: tuple        # (nodal_volume (K, *nodes), cell_volume (K, *cells)): build's inputs, for the fallback
+
+    size: tuple  # cells per axis of every field's block (static)
+    nodes: tuple  # the grid's nodes per axis (static)
+    origin: jax.Array  # (K, d) int32: the first cell of each field's block
+    fits: jax.Array  # () bool: every field's occupied cells lie in its block
+    dense: tuple  # (nodal_volume (K, *nodes), cell_volume (K, *cells)): build's inputs, for the fallback
     axisymmetric: bool
 
 
 @dataclass(frozen=True)
 class DDMPGrid:
-    V: jax.Array      # (K, *nodes) V_j of (R3), m^d; on the blocks' nodes (K, *(size + 1)) with a window
-    A: jax.Array      # (K, *cells, 2^d, 2^d, d) per-cell (S_j, grad S_i), m^(d-1); the blocks' cells with a window
+    V: jax.Array  # (K, *nodes) V_j of (R3), m^d; on the blocks' nodes (K, *(size + 1)) with a window
+    A: jax.Array  # (K, *cells, 2^d, 2^d, d) per-cell (S_j, grad S_i), m^(d-1); the blocks' cells with a window
     theta: jax.Array  # (K, *nodes) nodal fill of (R1); the blocks' nodes with a window
     window: Window | None = None
 
@@ -193,7 +201,7 @@ def window_origin(cell_volume, size):
     occupied = cell_volume > 0
     origin, fits = [], jnp.ones((K,), bool)
     for e in range(d):
-        occ = jnp.any(occupied, axis=tuple(1 + k for k in range(d) if k != e))          # (K, cells_e)
+        occ = jnp.any(occupied, axis=tuple(1 + k for k in range(d) if k != e))  # (K, cells_e)
         lo = jnp.argmax(occ, axis=-1)
         hi = cells[e] - 1 - jnp.argmax(occ[:, ::-1], axis=-1)
         o = jnp.clip(lo, 0, cells[e] - size[e])
@@ -228,7 +236,7 @@ def take_window(a, origin, size):
     """a (K or 1, *space, ...) -> (K, *size, ...): each field's block of `size` (static) at its
     origin (K, d); an array of one field (the common pressure) is taken at every field's block."""
     d = len(size)
-    extra = tuple(a.shape[1 + d:])
+    extra = tuple(a.shape[1 + d :])
     if a.shape[0] == 1 and origin.shape[0] > 1:
         return jax.vmap(lambda o: jax.lax.dynamic_slice(a[0], _index(o, len(extra)), tuple(size) + extra))(origin)
     return jax.vmap(lambda ak, o: jax.lax.dynamic_slice(ak, _index(o, len(extra)), tuple(size) + extra))(a, origin)
@@ -237,7 +245,7 @@ def take_window(a, origin, size):
 def put_window(w, origin, space):
     """The blocks w (K, *size, ...) placed at their origins (K, d) in zeros (K, *space, ...)."""
     d = len(space)
-    extra = tuple(w.shape[1 + d:])
+    extra = tuple(w.shape[1 + d :])
     zeros = jnp.zeros(tuple(space) + extra, w.dtype)
     return jax.vmap(lambda wk, o: jax.lax.dynamic_update_slice(zeros, wk, _index(o, len(extra))))(w, origin)
 
@@ -258,11 +266,14 @@ def _on_windows(grid, dg, op, *nodal):
         return op(dg, *nodal)
     wnodes = tuple(c + 1 for c in w.size)
     K = w.origin.shape[0]
-    blocks = jax.lax.cond(w.fits, lambda: tuple(take_window(a, w.origin, wnodes) for a in nodal),
-                          lambda: tuple(jnp.zeros((K,) + wnodes + a.shape[1 + len(wnodes):], a.dtype) for a in nodal))
+    blocks = jax.lax.cond(
+        w.fits,
+        lambda: tuple(take_window(a, w.origin, wnodes) for a in nodal),
+        lambda: tuple(jnp.zeros((K,) + wnodes + a.shape[1 + len(wnodes) :], a.dtype) for a in nodal),
+    )
     on_blocks = op(dg, *blocks)
 
-    @jax.checkpoint   # differentiated, a conditional keeps both branches' residuals: these are the inputs alone
+    @jax.checkpoint  # differentiated, a conditional keeps both branches' residuals: these are the inputs alone
     def on_grid(dense, nodal):
         return op(build(grid, *dense, w.axisymmetric), *nodal)
 
@@ -299,7 +310,7 @@ def _cell_integrator(grid, dtype, axisymmetric, r_c=None):
 
     if not axisymmetric:
         return lambda tc, T, Ts: plain(tc, T)
-    if r_c is None:   # (1 or K, cells_0, 1, ...): the radius of each cell's first node
+    if r_c is None:  # (1 or K, cells_0, 1, ...): the radius of each cell's first node
         r_c = jnp.asarray(grid.origin[0] + grid.h * np.arange(grid.cells[0]), dtype).reshape((1, -1) + (1,) * (d - 1))
 
     def integrate(tc, T, Ts):
@@ -326,8 +337,14 @@ def build(grid, nodal_volume, cell_volume, axisymmetric=False, window=None):
     if window is not None:
         window = tuple(int(c) for c in window)
         origin, fits = window_origin(cell_volume, window)
-        win = Window(size=window, nodes=tuple(grid.nodes), origin=origin, fits=jnp.all(fits),
-                     dense=(nodal_volume, cell_volume), axisymmetric=axisymmetric)
+        win = Window(
+            size=window,
+            nodes=tuple(grid.nodes),
+            origin=origin,
+            fits=jnp.all(fits),
+            dense=(nodal_volume, cell_volume),
+            axisymmetric=axisymmetric,
+        )
         wnodes = tuple(w + 1 for w in window)
         nodal_volume = take_window(nodal_volume, origin, wnodes)
         cell_volume = take_window(cell_volume, origin, window)
@@ -337,32 +354,38 @@ def build(grid, nodal_volume, cell_volume, axisymmetric=False, window=None):
             r_c = jax.vmap(lambda o: jax.lax.dynamic_slice(r_all, (o,), (window[0],)))(origin[:, 0])
             r_c = r_c.reshape(r_c.shape + (1,) * (d - 1))
     integrate = _cell_integrator(grid, dtype, axisymmetric, r_c)
-    theta = jnp.clip(nodal_volume / support, 0.0, 1.0)   # (R1)
+    theta = jnp.clip(nodal_volume / support, 0.0, 1.0)  # (R1)
     tc = corners(theta, d)
-    expected = jnp.sum(integrate(tc, T0, T0s), axis=-1)             # integral of theta over the cell
-    tc = tc * cell_weight(expected, cell_volume)[..., None]                                 # (R2)
+    expected = jnp.sum(integrate(tc, T0, T0s), axis=-1)  # integral of theta over the cell
+    tc = tc * cell_weight(expected, cell_volume)[..., None]  # (R2)
     Vc = integrate(tc, T0, T0s)
     A = integrate(tc, Tg, Tgs)
-    V = add_corners(Vc, d)                                                               # (R3)
+    V = add_corners(Vc, d)  # (R3)
     return DDMPGrid(V=V, A=A, theta=theta, window=win)
 
 
 # sum_{j,b} s_jab A_jib -> (..., i, a): the stress force (E11)
 _force_contraction = bilinear_contraction(
-    lambda s, A: sum(s[..., j, None, :, b] * A[..., j, :, None, b] for j in range(A.shape[-3]) for b in range(A.shape[-1])),
-    lambda s, A: jnp.sum(s[..., :, None, :, :] * A[..., :, :, None, :], axis=(-4, -1)))
+    lambda s, A: sum(
+        s[..., j, None, :, b] * A[..., j, :, None, b] for j in range(A.shape[-3]) for b in range(A.shape[-1])
+    ),
+    lambda s, A: jnp.sum(s[..., :, None, :, :] * A[..., :, :, None, :], axis=(-4, -1)),
+)
 # sum_i v_ia A_jib -> (..., j, a, b): the velocity gradient (E12)
 _gradient_contraction = bilinear_contraction(
     lambda v, A: sum(v[..., None, i, :, None] * A[..., :, i, None, :] for i in range(A.shape[-2])),
-    lambda v, A: jnp.sum(v[..., None, :, :, None] * A[..., :, :, None, :], axis=-3))
+    lambda v, A: jnp.sum(v[..., None, :, :, None] * A[..., :, :, None, :], axis=-3),
+)
 # sum_j q_j A_jik -> (..., i, k): the stress force (E11) of an isotropic share q I
 _isotropic_contraction = bilinear_contraction(
     lambda q, A: sum(q[..., j, None, None] * A[..., j, :, :] for j in range(A.shape[-3])),
-    lambda q, A: jnp.sum(q[..., :, None, None] * A, axis=-3))
+    lambda q, A: jnp.sum(q[..., :, None, None] * A, axis=-3),
+)
 # sum_i p_i A_nik -> (..., n, k): the integral of theta S_n grad p
 _scalar_contraction = bilinear_contraction(
     lambda p, A: sum(p[..., None, i, None] * A[..., :, i, :] for i in range(A.shape[-2])),
-    lambda p, A: jnp.sum(p[..., None, :, None] * A, axis=-2))
+    lambda p, A: jnp.sum(p[..., None, :, None] * A, axis=-2),
+)
 
 
 def nodal_stress_force(grid, dg, sigma_hat_volume):
@@ -373,7 +396,7 @@ def nodal_stress_force(grid, dg, sigma_hat_volume):
     vmin = 1e-12 * grid.h**d
 
     def op(dg, shv):
-        sc = corners(safe_div(shv, dg.V[..., None, None], vmin), d)     # (..., j, a, b)
+        sc = corners(safe_div(shv, dg.V[..., None, None], vmin), d)  # (..., j, a, b)
         return add_corners(-_force_contraction(sc, dg.A), d)
 
     return _on_windows(grid, dg, op, sigma_hat_volume)
@@ -405,7 +428,7 @@ def nodal_velocity_gradient(grid, dg, v):
     vmin = 1e-12 * grid.h**d
 
     def op(dg, v):
-        vc = corners(v, d)                                                # (..., i, a)
+        vc = corners(v, d)  # (..., i, a)
         return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
 
     return _on_windows(grid, dg, op, v)

@@ -2,6 +2,7 @@
 
 All functions are pure and jit/vmap/grad-compatible; `summary` returns host floats.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -64,18 +65,25 @@ def per_phase(scene, state):
     out = {}
     for p, sl in zip(scene.phases, phase_slices(scene)):
         m, v = state.mass[sl], state.v[sl]
-        out[p.name] = {"mass": jnp.sum(m), "momentum": jnp.sum(m[:, None] * v, 0),
-                       "kinetic": 0.5 * jnp.sum(m * jnp.sum(v**2, -1)),
-                       "internal": jnp.sum(m * state.energy[sl])}
+        out[p.name] = {
+            "mass": jnp.sum(m),
+            "momentum": jnp.sum(m[:, None] * v, 0),
+            "kinetic": 0.5 * jnp.sum(m * jnp.sum(v**2, -1)),
+            "internal": jnp.sum(m * state.energy[sl]),
+        }
     return out
 
 
 def summary(scene, params, state) -> dict:
     """Host-side floats: time, mass, momentum, kinetic, internal and total energy."""
-    return {"t": float(state.t), "mass": float(total_mass(state)),
-            "momentum": [float(a) for a in momentum(state)],
-            "kinetic": float(kinetic_energy(state)), "internal": float(internal_energy(state)),
-            "total_energy": float(total_energy(scene, params, state))}
+    return {
+        "t": float(state.t),
+        "mass": float(total_mass(state)),
+        "momentum": [float(a) for a in momentum(state)],
+        "kinetic": float(kinetic_energy(state)),
+        "internal": float(internal_energy(state)),
+        "total_energy": float(total_energy(scene, params, state)),
+    }
 
 
 def volume_fractions(scene, state):
@@ -90,5 +98,7 @@ def volume_fractions(scene, state):
     K = scene.n_fields
     field = jnp.asarray(particle_fields(scene)) if K > 1 else None
     vol = scatter_weighted(linear_stencil(grid, state.x), field, state.volume[:, None], K, grid.n_nodes)[..., 0]
-    theta = (vol / jnp.asarray(node_support(grid, scene.axisymmetric).reshape(-1), vol.dtype)).reshape((K,) + grid.nodes)
+    theta = (vol / jnp.asarray(node_support(grid, scene.axisymmetric).reshape(-1), vol.dtype)).reshape(
+        (K,) + grid.nodes
+    )
     return theta, jnp.sum(theta, 0)

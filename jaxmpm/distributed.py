@@ -26,6 +26,7 @@ on every process (for plots and files). On one machine, test with two devices of
 one process (`XLA_FLAGS=--xla_force_host_platform_device_count=2`) or two processes on
 localhost (tests/test_distributed.py runs both).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -52,8 +53,10 @@ def particle_mesh(devices=None) -> Mesh:
 def mesh_size(mesh: Mesh) -> int:
     """The number of devices of a particle mesh; ValueError for any other mesh."""
     if not isinstance(mesh, Mesh) or mesh.axis_names != (AXIS,):
-        raise ValueError(f"mesh = {mesh!r} is invalid: allowed a jax.sharding.Mesh with the one axis {AXIS!r} "
-                         "(jaxmpm.distributed.particle_mesh)")
+        raise ValueError(
+            f"mesh = {mesh!r} is invalid: allowed a jax.sharding.Mesh with the one axis {AXIS!r} "
+            "(jaxmpm.distributed.particle_mesh)"
+        )
     return int(mesh.devices.size)
 
 
@@ -62,11 +65,14 @@ def to_host(tree):
     processes' devices (after `jax.distributed.initialize`) are gathered from all of them
     (`jax.experimental.multihost_utils.process_allgather`): every process must call this
     together. Other arrays are copied as they are."""
+
     def host(a):
         if isinstance(a, jax.Array) and not a.is_fully_addressable:
             from jax.experimental import multihost_utils
+
             return np.asarray(multihost_utils.process_allgather(a, tiled=True))
         return np.asarray(a)
+
     return jax.tree.map(host, tree)
 
 
@@ -100,9 +106,16 @@ def shard_order(scene, shards: int):
 
 def _per_particle(state, fn_particle, fn_time):
     """Apply fn_particle to every per-particle leaf of a State (or history) and fn_time to t."""
-    return State(**{name: (None if getattr(state, name) is None else
-                           (fn_time if name == "t" else fn_particle)(getattr(state, name)))
-                    for name in State.__dataclass_fields__})
+    return State(
+        **{
+            name: (
+                None
+                if getattr(state, name) is None
+                else (fn_time if name == "t" else fn_particle)(getattr(state, name))
+            )
+            for name in State.__dataclass_fields__
+        }
+    )
 
 
 def state_spec(state) -> State:
@@ -117,11 +130,15 @@ def to_shards(scene, state, mesh):
     order, pad = shard_order(scene, mesh_size(mesh))
     permuted = _per_particle(state, lambda a: a[order], lambda a: a)
     scale = np.where(pad, padding_scale(permuted.mass.dtype), 1.0)
-    permuted = dataclasses.replace(permuted, mass=permuted.mass * scale.astype(permuted.mass.dtype),
-                                   volume=permuted.volume * scale.astype(permuted.volume.dtype))
+    permuted = dataclasses.replace(
+        permuted,
+        mass=permuted.mass * scale.astype(permuted.mass.dtype),
+        volume=permuted.volume * scale.astype(permuted.volume.dtype),
+    )
     specs = state_spec(state)
-    return jax.tree.map(lambda a, s: jax.device_put(a, NamedSharding(mesh, s)), permuted, specs,
-                        is_leaf=lambda x: isinstance(x, P))
+    return jax.tree.map(
+        lambda a, s: jax.device_put(a, NamedSharding(mesh, s)), permuted, specs, is_leaf=lambda x: isinstance(x, P)
+    )
 
 
 def from_shards(scene, state, shards: int, time_axis: bool = False):
@@ -140,7 +157,7 @@ def make_sharded_step(scene, mesh):
     shards = mesh_size(mesh)
     local = make_step(scene, shards=shards, axis_name=AXIS)
     shard_map = getattr(jax, "shard_map", None)
-    if shard_map is None:                                   # jax < 0.6
+    if shard_map is None:  # jax < 0.6
         from jax.experimental.shard_map import shard_map
 
     def step(params, state, t_stop, dt=None):

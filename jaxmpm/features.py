@@ -18,6 +18,7 @@ numbering of Piekutowski's debris-cloud sketches, as in the calibration data):
 the features' axial velocities in m/s (negative: downstream). Defaults w = 0.1 h, r_axis = h: on
 the coarse debris cloud the soft velocities agree with the hard ones within 0.7% (tests).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -57,7 +58,9 @@ def feature_positions(scene, state, width=None, r_axis=None, projectile="project
     r_axis = h if r_axis is None else r_axis
     r, z, m = _projectile(scene, state, projectile)
     w_axis = m * axis_weight(r, r_axis)
-    return jnp.stack([soft_min(state.x[:, 1], state.mass, width), soft_min(z, w_axis, width), soft_max(z, w_axis, width)])
+    return jnp.stack(
+        [soft_min(state.x[:, 1], state.mass, width), soft_min(z, w_axis, width), soft_max(z, w_axis, width)]
+    )
 
 
 def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
@@ -66,7 +69,9 @@ def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
     r_axis = scene.grid.h if r_axis is None else r_axis
     r, z, _ = _projectile(scene, state, projectile)
     near = r < r_axis
-    return jnp.stack([jnp.min(state.x[:, 1]), jnp.min(jnp.where(near, z, jnp.inf)), jnp.max(jnp.where(near, z, -jnp.inf))])
+    return jnp.stack(
+        [jnp.min(state.x[:, 1]), jnp.min(jnp.where(near, z, jnp.inf)), jnp.max(jnp.where(near, z, -jnp.inf))]
+    )
 
 
 def slope(t, y):

@@ -17,6 +17,7 @@ this is traced only for scenes with K >= 2; a one-field scene never calls into t
            J_kj . (v_k - v_j), split between the pair (`drag_heat`), to the particles' internal energy.
 Shapes: K fields, n nodes, d dimensions; SI units.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -65,8 +66,8 @@ def solve_rows(A, b):
 def lsq_moments(st, pressure, volume):
     """Per-particle, per-stencil-node contributions (N, S, C) for the linear fit (E15):
     w, w r, w r r^T, w p, w p r with w = V_p S_np and r = x_p - x_n. C = 2 + 2 d + d^2."""
-    w = (volume[:, None] * st.w)[..., None]                 # (N, S, 1)
-    r = -st.dpos                                            # (N, S, d)
+    w = (volume[:, None] * st.w)[..., None]  # (N, S, 1)
+    r = -st.dpos  # (N, S, d)
     d = r.shape[-1]
     rr = (r[..., :, None] * r[..., None, :]).reshape(r.shape[:-1] + (d * d,))
     p = pressure[:, None, None]
@@ -77,13 +78,13 @@ def lsq_nodal_pressure(moments, d, h):
     """(E15) P_nk = a of the fit p ~ a + b . (x - x_n) from the scattered moments (K, n, C);
     the plain weighted average where the fit is singular (a node seen by particles on a line)."""
     w = moments[..., 0]
-    wr = moments[..., 1:1 + d]
-    wrr = moments[..., 1 + d:1 + d + d * d].reshape(moments.shape[:-1] + (d, d))
+    wr = moments[..., 1 : 1 + d]
+    wrr = moments[..., 1 + d : 1 + d + d * d].reshape(moments.shape[:-1] + (d, d))
     wp = moments[..., 1 + d + d * d]
-    wpr = moments[..., 2 + d + d * d:]
-    top = jnp.concatenate([w[..., None], wr], -1)[..., None, :]                 # (K, n, 1, d+1)
-    rest = jnp.concatenate([wr[..., :, None], wrr], -1)                          # (K, n, d, d+1)
-    M = jnp.concatenate([top, rest], -2)                                         # (K, n, d+1, d+1)
+    wpr = moments[..., 2 + d + d * d :]
+    top = jnp.concatenate([w[..., None], wr], -1)[..., None, :]  # (K, n, 1, d+1)
+    rest = jnp.concatenate([wr[..., :, None], wrr], -1)  # (K, n, d, d+1)
+    M = jnp.concatenate([top, rest], -2)  # (K, n, d+1, d+1)
     rhs = jnp.concatenate([wp[..., None], wpr], -1)
     # condition: scale the position block by h so the matrix is O(w) throughout
     scale = jnp.concatenate([jnp.ones(1, M.dtype), jnp.full((d,), 1.0 / h, M.dtype)])
@@ -154,20 +155,26 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min, impulses=False):
     -(sum_{j > k} J_kj - sum_{j < k} J_jk) / dt), for `drag_heat`."""
     n_f = m.shape[0]
     Kr = [[None if j == k else Kmat[k][j] for j in range(n_f)] for k in range(n_f)]
-    empty = m <= m_min                                                        # (K, n)
+    empty = m <= m_min  # (K, n)
     a = [jnp.where(empty[k], 1.0, m[k]) for k in range(n_f)]
-    c = [[None if j == k else jnp.where(empty[k] | empty[j], 0.0, dt * V_n * Kr[k][j]) for j in range(n_f)]
-         for k in range(n_f)]
+    c = [
+        [None if j == k else jnp.where(empty[k] | empty[j], 0.0, dt * V_n * Kr[k][j]) for j in range(n_f)]
+        for k in range(n_f)
+    ]
     rhs = [m[k][:, None] * v_star[k] for k in range(n_f)]
     if n_f == 2:
         c12 = c[0][1]
         a1, a2 = a
         det = a1 * a2 + c12 * (a1 + a2)
-        v = [((a2 + c12)[:, None] * rhs[0] + c12[:, None] * rhs[1]) / det[:, None],
-             ((a1 + c12)[:, None] * rhs[1] + c12[:, None] * rhs[0]) / det[:, None]]
+        v = [
+            ((a2 + c12)[:, None] * rhs[0] + c12[:, None] * rhs[1]) / det[:, None],
+            ((a1 + c12)[:, None] * rhs[1] + c12[:, None] * rhs[0]) / det[:, None],
+        ]
     else:
-        A = [[a[k] + sum(c[k][i] for i in range(n_f) if i != k) if j == k else -c[k][j] for j in range(n_f)]
-             for k in range(n_f)]
+        A = [
+            [a[k] + sum(c[k][i] for i in range(n_f) if i != k) if j == k else -c[k][j] for j in range(n_f)]
+            for k in range(n_f)
+        ]
         v = solve_rows(A, rhs)[0]
     F = [V_n[:, None] * sum(Kr[k][j][:, None] * (v[j] - v[k]) for j in range(n_f) if j != k) for k in range(n_f)]
     F = jnp.where(empty[..., None], 0.0, jnp.stack(F))

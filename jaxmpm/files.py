@@ -1,6 +1,7 @@
 """Files written safely: never over a user's file unless asked, never over a directory, through a
 temporary name renamed into place (an interrupted write leaves no partial file under the final
 name), and not onto a disk without room. Used by `jaxmpm.io`, `jaxmpm.restart` and the commands."""
+
 from __future__ import annotations
 
 import contextlib
@@ -20,9 +21,10 @@ def check_space(folder, needed: int) -> None:
         probe = probe.parent
     free = shutil.disk_usage(probe).free
     if free < needed:
-        raise OSError(f"not enough disk space in {folder}: the outputs need about {needed / 1e6:.1f} MB, "
-                      f"{free / 1e6:.1f} MB are free (fewer outputs: --n-out, or another --out)")
-
+        raise OSError(
+            f"not enough disk space in {folder}: the outputs need about {needed / 1e6:.1f} MB, "
+            f"{free / 1e6:.1f} MB are free (fewer outputs: --n-out, or another --out)"
+        )
 
 
 def check_new(*paths, overwrite: bool = False) -> None:
@@ -32,13 +34,17 @@ def check_new(*paths, overwrite: bool = False) -> None:
     before it computes anything, not when it saves its result."""
     for p in paths:
         if os.path.isdir(p):
-            raise FileExistsError(f"{os.fspath(p)} is a directory: refusing to replace it with a file "
-                                  "(allowed a file name; move or remove the directory)")
+            raise FileExistsError(
+                f"{os.fspath(p)} is a directory: refusing to replace it with a file "
+                "(allowed a file name; move or remove the directory)"
+            )
     if not overwrite:
         for p in paths:
             if os.path.lexists(p):
-                raise FileExistsError(f"{os.fspath(p)} exists: refusing to overwrite it "
-                                      "(pass overwrite=True, or --overwrite on the command line)")
+                raise FileExistsError(
+                    f"{os.fspath(p)} exists: refusing to overwrite it "
+                    "(pass overwrite=True, or --overwrite on the command line)"
+                )
     check_writable(*paths)
 
 
@@ -53,8 +59,9 @@ def check_writable(*paths) -> None:
         try:
             os.close(os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
         except OSError as e:
-            raise OSError(f"cannot write in {os.fspath(folder)}: {e.strerror or e} "
-                          "(allowed a folder this user can write to)") from None
+            raise OSError(
+                f"cannot write in {os.fspath(folder)}: {e.strerror or e} (allowed a folder this user can write to)"
+            ) from None
         os.unlink(probe)
 
 
@@ -65,17 +72,21 @@ def _make_parent(path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
         block = next((q for q in reversed(path.parents) if os.path.lexists(q) and not q.is_dir()), path.parent)
-        raise FileExistsError(f"cannot write {os.fspath(path)}: {os.fspath(block)} is a file, not a folder "
-                              "(allowed a path whose folders are folders or do not exist yet)") from None
+        raise FileExistsError(
+            f"cannot write {os.fspath(path)}: {os.fspath(block)} is a file, not a folder "
+            "(allowed a path whose folders are folders or do not exist yet)"
+        ) from None
     except OSError as e:
-        raise OSError(f"cannot create the folder {os.fspath(path.parent)}: {e.strerror or e} "
-                      "(allowed a folder this user can create and write to)") from None
+        raise OSError(
+            f"cannot create the folder {os.fspath(path.parent)}: {e.strerror or e} "
+            "(allowed a folder this user can create and write to)"
+        ) from None
 
 
 # the temporary files of `_atomic` and `check_writable`: .<name>.<pid>-<12 hex>.tmp (or, written by
 # earlier versions, .<name>.<12 hex>.tmp) and .jaxmpm-write-probe.<12 hex>
 _TEMPORARY = re.compile(r"^\.(?:.+\.(?:(?P<pid>\d+)-)?[0-9a-f]{12}\.tmp|jaxmpm-write-probe\.[0-9a-f]{12})$")
-_UNOWNED_AGE = 600.0       # s: a temporary file that names no process is stale after this long
+_UNOWNED_AGE = 600.0  # s: a temporary file that names no process is stale after this long
 
 
 def _alive(pid: int) -> bool:
@@ -83,7 +94,7 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except OSError:             # exists, owned by another user
+    except OSError:  # exists, owned by another user
         return True
     return True
 

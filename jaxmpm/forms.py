@@ -16,6 +16,7 @@ The form is read when a step is traced: `transfer_form()` is the one the context
 "auto": "cpu" where JAX's default backend is the CPU and "gpu" elsewhere. A function compiled
 before the setting changed keeps the form it was traced with.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -36,7 +37,7 @@ def _checked(form, where):
 
 
 def transfer_form() -> str:
-    """"cpu" or "gpu": the form of the transfers for the function being traced (see the module)."""
+    """ "cpu" or "gpu": the form of the transfers for the function being traced (see the module)."""
     form = _FORCED.get()
     if form is None:
         form = _checked(os.environ.get(ENV, "auto").strip().lower() or "auto", ENV)

@@ -1,5 +1,6 @@
 """Geometry of a scene: the bodies phases fill (Box, Sphere, Difference) and the fixed Cartesian
 grid, each validated when built (ValueError naming the field and the allowed range). SI units."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -10,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
+
 
 def _fail(name: str, value: Any, allowed: str) -> None:
     raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
@@ -50,6 +52,7 @@ def _float(name: str, value: Any) -> float:
     if not math.isfinite(float(value)):
         _fail(name, value, "a finite number")
     return float(value)
+
 
 # ----------------------------------------------------------------------------------- geometry
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ renamed (the .h5 before the .xdmf), so an interrupted write never leaves a half 
 final name. `read` and `summary` check the layout: a file that is not one `write` wrote gets a
 ValueError naming it and what is missing.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,8 +39,19 @@ import numpy as np
 from jaxmpm.files import _atomic, _make_parent, check_new, check_space  # noqa: F401  (io's API; restart, cli)
 from jaxmpm.state import State, phase_slices
 
-UNITS = {"x": "m", "v": "m/s", "volume": "m^3", "mass": "kg", "F": "1", "stress": "Pa",
-         "energy": "J/kg", "C": "1/s", "eps_ps": "1", "damage": "1", "pressure": "Pa"}
+UNITS = {
+    "x": "m",
+    "v": "m/s",
+    "volume": "m^3",
+    "mass": "kg",
+    "F": "1",
+    "stress": "Pa",
+    "energy": "J/kg",
+    "C": "1/s",
+    "eps_ps": "1",
+    "damage": "1",
+    "pressure": "Pa",
+}
 FIELDS = ("x", "v", "volume", "mass", "F", "stress", "energy")
 OPTIONAL = ("C", "eps_ps", "pressure", "damage")
 H5_SUFFIXES = (".h5", ".hdf5")
@@ -66,7 +78,7 @@ def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
     """Bytes that `write` needs for n_times outputs of n_particles (datasets x, v, x3, v3, volume,
     mass, F, stress, energy, eps_ps, pressure, damage, C where used), with 10% for metadata and the XDMF."""
     d = scene.dim
-    D = 3 if scene.axisymmetric else d                    # F and stress: (n, 3, 3) in axisymmetric scenes
+    D = 3 if scene.axisymmetric else d  # F and stress: (n, 3, 3) in axisymmetric scenes
     per_particle = 2 * d + 6 + 2 + 2 * D * D + 4 + (d * d if scene.transfer == "apic" else 0)
     return int(1.1 * n_times * n_particles * per_particle * itemsize) + 65536
 
@@ -79,7 +91,9 @@ def xdmf_path(path) -> Path:
 def _h5_path(path) -> Path:
     path = Path(path)
     if path.suffix not in H5_SUFFIXES:
-        raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in {' or '.join(H5_SUFFIXES)}")
+        raise ValueError(
+            f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in {' or '.join(H5_SUFFIXES)}"
+        )
     return path
 
 
@@ -94,8 +108,19 @@ def field_shapes(scene) -> dict:
     """{field: shape} of one State of `scene` (no time axis): x, v (n, d); mass, volume, energy,
     eps_ps, pressure, damage (n,); F, stress (n, md, md) with md = scene.material_dim; C (n, d, d)."""
     n, d, md = phase_slices(scene)[-1].stop, scene.dim, scene.material_dim
-    return {"x": (n, d), "v": (n, d), "volume": (n,), "mass": (n,), "F": (n, md, md), "stress": (n, md, md),
-            "energy": (n,), "C": (n, d, d), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
+    return {
+        "x": (n, d),
+        "v": (n, d),
+        "volume": (n,),
+        "mass": (n,),
+        "F": (n, md, md),
+        "stress": (n, md, md),
+        "energy": (n,),
+        "C": (n, d, d),
+        "eps_ps": (n,),
+        "pressure": (n,),
+        "damage": (n,),
+    }
 
 
 def _check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
@@ -108,8 +133,10 @@ def _check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
         a = fields[name]
         need = lead + shape
         if tuple(a.shape) != need:
-            raise ValueError(f"{what}.{name} has shape {tuple(a.shape)}: the scene {scene.name!r} has {n} particles "
-                             f"in {scene.dim}D and needs {need}")
+            raise ValueError(
+                f"{what}.{name} has shape {tuple(a.shape)}: the scene {scene.name!r} has {n} particles "
+                f"in {scene.dim}D and needs {need}"
+            )
         if a.dtype.kind != "f":
             raise ValueError(f"{what}.{name} has dtype {a.dtype}: allowed floating-point numbers")
 
@@ -118,14 +145,18 @@ def _check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
 def _host_history(history: State) -> dict:
     """{field: numpy array with a leading time axis} of a history (or of one State)."""
     if not isinstance(history, State):
-        raise ValueError(f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State (one State, or a "
-                         "history with a leading time axis as from jaxmpm.simulate)")
+        raise ValueError(
+            f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State (one State, or a "
+            "history with a leading time axis as from jaxmpm.simulate)"
+        )
     x = np.asarray(history.x)
     if x.ndim == 2:
         history = jax.tree.map(lambda a: np.asarray(a)[None], history)
     elif x.ndim != 3:
-        raise ValueError(f"history.x has shape {x.shape}: allowed (n_times, n_particles, dim) or one State's "
-                         "(n_particles, dim); write each member of a vmapped ensemble separately")
+        raise ValueError(
+            f"history.x has shape {x.shape}: allowed (n_times, n_particles, dim) or one State's "
+            "(n_particles, dim); write each member of a vmapped ensemble separately"
+        )
     out = {"t": np.asarray(history.t).reshape(-1)}
     for name in FIELDS + OPTIONAL:
         a = getattr(history, name, None)
@@ -162,28 +193,40 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
 
     h5 = _h5_path(path)
     xdmf = xdmf_path(h5)
-    check_new(h5, xdmf, overwrite=overwrite)          # and neither is a directory, even with overwrite
+    check_new(h5, xdmf, overwrite=overwrite)  # and neither is a directory, even with overwrite
     _check_scene(scene)
     data = _host_history(history)
     slices = phase_slices(scene)
     n, d = data["x"].shape[1], data["x"].shape[2]
     if n != slices[-1].stop or d != scene.dim:
-        raise ValueError(f"history has {n} particles in {d}D: the scene {scene.name!r} has "
-                         f"{slices[-1].stop} particles in {scene.dim}D")
+        raise ValueError(
+            f"history has {n} particles in {d}D: the scene {scene.name!r} has "
+            f"{slices[-1].stop} particles in {scene.dim}D"
+        )
     n_times = data["x"].shape[0]
     if data["t"].shape != (n_times,) or data["t"].dtype.kind != "f":
-        raise ValueError(f"history.t has shape {np.shape(history.t)} and dtype {data['t'].dtype}: the history has "
-                         f"{n_times} output times (history.x has shape {data['x'].shape}) and needs ({n_times},) "
-                         "floating-point times (s)")
+        raise ValueError(
+            f"history.t has shape {np.shape(history.t)} and dtype {data['t'].dtype}: the history has "
+            f"{n_times} output times (history.x has shape {data['x'].shape}) and needs ({n_times},) "
+            "floating-point times (s)"
+        )
     _check_shapes(scene, data, "history", (n_times,))
     _make_parent(h5)
     # both renamed only once both are written, the .h5 first: should that rename fail, no new
     # .xdmf points into a file that is not there
     with _atomic(xdmf) as tmp_xdmf, _atomic(h5) as tmp_h5:
         with h5py.File(tmp_h5, "w") as f:
-            f.attrs.update({"jaxmpm_version": jaxmpm.__version__, "dtype": str(data["x"].dtype), "dim": d,
-                            "n_out": len(data["t"]) - 1, "n_times": len(data["t"]), "scene_name": scene.name,
-                            "phases": ",".join(scene.phase_names())})
+            f.attrs.update(
+                {
+                    "jaxmpm_version": jaxmpm.__version__,
+                    "dtype": str(data["x"].dtype),
+                    "dim": d,
+                    "n_out": len(data["t"]) - 1,
+                    "n_times": len(data["t"]),
+                    "scene_name": scene.name,
+                    "phases": ",".join(scene.phase_names()),
+                }
+            )
             f.create_dataset("scene", data=jaxmpm.scene_to_toml(scene))
             if params is not None:
                 for kp, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
@@ -194,11 +237,18 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
                 g.attrs["time"] = t
                 for phase, sl in zip(scene.phases, slices):
                     pg = g.create_group(phase.name)
-                    pg.attrs.update({"material": phase.to_dict()["material"], "field": phase.field,
-                                     "n_particles": sl.stop - sl.start})
+                    pg.attrs.update(
+                        {
+                            "material": phase.to_dict()["material"],
+                            "field": phase.field,
+                            "n_particles": sl.stop - sl.start,
+                        }
+                    )
                     for name in FIELDS + OPTIONAL:
                         if name in data:
-                            pg.create_dataset(name, data=data[name][i, sl]).attrs["units"] = units(name, d, scene.axisymmetric)
+                            pg.create_dataset(name, data=data[name][i, sl]).attrs["units"] = units(
+                                name, d, scene.axisymmetric
+                            )
                     if d < 3:
                         pg.create_dataset("x3", data=_pad3(data["x"][i, sl])).attrs["units"] = "m"
                         pg.create_dataset("v3", data=_pad3(data["v"][i, sl])).attrs["units"] = "m/s"
@@ -211,39 +261,55 @@ def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
 
     def item(dims, ref):
         prec = data[ref.rsplit("/", 1)[1].rstrip("3")].dtype.itemsize
-        return (f'<DataItem Dimensions="{" ".join(map(str, dims))}" NumberType="Float" Precision="{prec}" '
-                f'Format="HDF">{escape(h5_name)}:{ref}</DataItem>')
+        return (
+            f'<DataItem Dimensions="{" ".join(map(str, dims))}" NumberType="Float" Precision="{prec}" '
+            f'Format="HDF">{escape(h5_name)}:{ref}</DataItem>'
+        )
 
-    lines = ['<?xml version="1.0" ?>', '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>',
-             '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', '<Domain>',
-             f'<Grid Name={quoteattr(scene.name)} GridType="Collection" CollectionType="Temporal">']
+    lines = [
+        '<?xml version="1.0" ?>',
+        '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>',
+        '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">',
+        "<Domain>",
+        f'<Grid Name={quoteattr(scene.name)} GridType="Collection" CollectionType="Temporal">',
+    ]
     for i, t in enumerate(data["t"]):
         grp = f"/t{i:04d}"
-        lines += [f'  <Grid Name="t{i:04d}" GridType="Collection" CollectionType="Spatial">',
-                  f'    <Time Value="{float(t)!r}"/>']
+        lines += [
+            f'  <Grid Name="t{i:04d}" GridType="Collection" CollectionType="Spatial">',
+            f'    <Time Value="{float(t)!r}"/>',
+        ]
         for phase, sl in zip(scene.phases, slices):
             n, base = sl.stop - sl.start, f"{grp}/{phase.name}"
             pos = "x3" if d < 3 else "x"
             vel = "v3" if d < 3 else "v"
-            lines += [f'    <Grid Name="{phase.name}" GridType="Uniform">',
-                      f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1"/>',
-                      f'      <Geometry GeometryType="XYZ">{item((n, 3), f"{base}/{pos}")}</Geometry>',
-                      f'      <Attribute Name="v" AttributeType="Vector" Center="Node">{item((n, 3), f"{base}/{vel}")}</Attribute>']
+            lines += [
+                f'    <Grid Name="{phase.name}" GridType="Uniform">',
+                f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1"/>',
+                f'      <Geometry GeometryType="XYZ">{item((n, 3), f"{base}/{pos}")}</Geometry>',
+                f'      <Attribute Name="v" AttributeType="Vector" Center="Node">{item((n, 3), f"{base}/{vel}")}</Attribute>',
+            ]
             for name in ("volume", "mass", "energy") + tuple(k for k in ("eps_ps", "pressure", "damage") if k in data):
-                lines.append(f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">'
-                             f'{item((n,), f"{base}/{name}")}</Attribute>')
+                lines.append(
+                    f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">'
+                    f"{item((n,), f'{base}/{name}')}</Attribute>"
+                )
             md = scene.material_dim
-            names = "rzt" if scene.axisymmetric else "xyz"       # axisymmetric: r, z, theta (hoop)
+            names = "rzt" if scene.axisymmetric else "xyz"  # axisymmetric: r, z, theta (hoop)
             for a in range(md):
                 for b in range(a, md):
-                    slab = (f'<DataItem ItemType="HyperSlab" Dimensions="{n} 1 1" Type="HyperSlab">'
-                            f'<DataItem Dimensions="3 3" Format="XML">0 {a} {b} 1 1 1 {n} 1 1</DataItem>'
-                            f'{item((n, md, md), f"{base}/stress")}</DataItem>')
-                    lines.append(f'      <Attribute Name="stress_{names[a]}{names[b]}" AttributeType="Scalar" '
-                                 f'Center="Node">{slab}</Attribute>')
-            lines.append('    </Grid>')
-        lines.append('  </Grid>')
-    lines += ['</Grid>', '</Domain>', '</Xdmf>']
+                    slab = (
+                        f'<DataItem ItemType="HyperSlab" Dimensions="{n} 1 1" Type="HyperSlab">'
+                        f'<DataItem Dimensions="3 3" Format="XML">0 {a} {b} 1 1 1 {n} 1 1</DataItem>'
+                        f"{item((n, md, md), f'{base}/stress')}</DataItem>"
+                    )
+                    lines.append(
+                        f'      <Attribute Name="stress_{names[a]}{names[b]}" AttributeType="Scalar" '
+                        f'Center="Node">{slab}</Attribute>'
+                    )
+            lines.append("    </Grid>")
+        lines.append("  </Grid>")
+    lines += ["</Grid>", "</Domain>", "</Xdmf>"]
     return "\n".join(lines) + "\n"
 
 
@@ -270,13 +336,16 @@ def _open(path):
     f = open_h5(path)
     try:
         if _is_restart(f):
-            raise ValueError(f"{os.fspath(path)} is a jaxmpm restart file, not an output file: continue its run with "
-                             "jaxmpm.restart.resume (jaxmpm run --resume FOLDER)")
+            raise ValueError(
+                f"{os.fspath(path)} is a jaxmpm restart file, not an output file: continue its run with "
+                "jaxmpm.restart.resume (jaxmpm run --resume FOLDER)"
+            )
         if "scene" not in f or not isinstance(f["scene"], h5py.Dataset) or f["scene"].dtype.kind not in "OSU":
             raise ValueError(f"{os.fspath(path)} is not a jaxmpm output file: it has no /scene dataset (TOML text)")
         if not _times(f):
-            raise ValueError(f"{os.fspath(path)} holds no output time group /t0000: it is not a complete jaxmpm "
-                             "output file")
+            raise ValueError(
+                f"{os.fspath(path)} holds no output time group /t0000: it is not a complete jaxmpm output file"
+            )
     except BaseException:
         f.close()
         raise
@@ -301,7 +370,9 @@ def _time(f, path, g: str):
     it is missing or not a number."""
     g = _node(f, path, f"/{g}", h5py.Group)
     if "time" not in g.attrs:
-        raise ValueError(f"{os.fspath(path)} has no attribute 'time' on {g.name}: it is not a complete jaxmpm output file")
+        raise ValueError(
+            f"{os.fspath(path)} has no attribute 'time' on {g.name}: it is not a complete jaxmpm output file"
+        )
     t = g.attrs["time"]
     if np.ndim(t) != 0 or np.asarray(t).dtype.kind not in "fiu":
         raise ValueError(f"{os.fspath(path)}: {g.name} attribute time = {t!r} is invalid: allowed a number (s)")
@@ -347,8 +418,10 @@ def read(path):
                     ds = _node(f, path, f"/{g}/{p.name}/{name}")
                     need = (sl.stop - sl.start,) + shapes[name][1:]
                     if ds.shape != need or ds.dtype.kind != "f":
-                        raise ValueError(f"{where}:/{g}/{p.name}/{name} has shape {ds.shape} ({ds.dtype}): its scene "
-                                         f"needs {need} floating-point numbers")
+                        raise ValueError(
+                            f"{where}:/{g}/{p.name}/{name} has shape {ds.shape} ({ds.dtype}): its scene "
+                            f"needs {need} floating-point numbers"
+                        )
                     parts.append(ds[()])
                 per_time.append(np.concatenate(parts))
             fields[name] = np.stack(per_time)
@@ -388,23 +461,31 @@ def summary(path) -> str:
                 ke = sum(float(0.5 * np.sum(f[g][p]["mass"][()] * np.sum(f[g][p]["v"][()] ** 2, -1))) for p in phases)
                 rows.append((m, ke))
         except (TypeError, ValueError) as e:
-            raise ValueError(f"{where}: the masses or velocities of /{g} are not numbers of matching shapes ({e})") from None
-        lines = [f"file:    {os.fspath(path)} (jaxmpm {a.get('jaxmpm_version', '?')}, {a.get('dtype', '?')}, {dim}D)",
-                 f"scene:   {spec.get('name', '?')}" + (f": {spec['description']}" if spec.get("description") else ""),
-                 f"outputs: {len(times)} times from {times[0]:.6g} s to {times[-1]:.6g} s",
-                 "phases:"]
+            raise ValueError(
+                f"{where}: the masses or velocities of /{g} are not numbers of matching shapes ({e})"
+            ) from None
+        lines = [
+            f"file:    {os.fspath(path)} (jaxmpm {a.get('jaxmpm_version', '?')}, {a.get('dtype', '?')}, {dim}D)",
+            f"scene:   {spec.get('name', '?')}" + (f": {spec['description']}" if spec.get("description") else ""),
+            f"outputs: {len(times)} times from {times[0]:.6g} s to {times[-1]:.6g} s",
+            "phases:",
+        ]
         for p in phases:
             pa = f[groups[0]][p].attrs
-            lines.append(f"  {p:<20} material {str(pa.get('material', '?')):<20} field {int(pa.get('field', 0))}  "
-                         f"{f[groups[0]][p]['x'].shape[0]} particles")
+            lines.append(
+                f"  {p:<20} material {str(pa.get('material', '?')):<20} field {int(pa.get('field', 0))}  "
+                f"{f[groups[0]][p]['x'].shape[0]} particles"
+            )
         if "params" in f:
             lines.append("params:  stored under /params")
     axi = bool(spec.get("axisymmetric", False))
     mass_u = units("mass", dim, axi)
-    lines += [f"{'':<22}{'first':>14}{'last':>14}",
-              f"{'t (s)':<22}{times[0]:>14.6g}{times[-1]:>14.6g}",
-              f"{'total mass (' + mass_u + ')':<22}{rows[0][0]:>14.6g}{rows[1][0]:>14.6g}",
-              f"{'kinetic (' + units('kinetic', dim, axi) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}"]
+    lines += [
+        f"{'':<22}{'first':>14}{'last':>14}",
+        f"{'t (s)':<22}{times[0]:>14.6g}{times[-1]:>14.6g}",
+        f"{'total mass (' + mass_u + ')':<22}{rows[0][0]:>14.6g}{rows[1][0]:>14.6g}",
+        f"{'kinetic (' + units('kinetic', dim, axi) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}",
+    ]
     return "\n".join(lines)
 
 

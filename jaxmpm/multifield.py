@@ -6,6 +6,7 @@ volume rate (E7, the transpose of E13) and the implicit exchange (E3).
 Shapes: N particles, K velocity fields, n_nodes nodes per field, d dimensions; `lay` is a
 jaxmpm.step.Layout. SI units.
 """
+
 from __future__ import annotations
 
 import jax
@@ -69,9 +70,13 @@ def ambient_pressure_by_phase(lay, params, st, state):
     p, kappa = phase_pressure_and_compressibility(lay, params, state)
     V = state.volume
     w = st.w[..., None]
-    g = scatter_named(lay, st, {"vol": w * V[:, None, None], "kvol": w * (V * kappa)[:, None, None],
-                                "pm": pressure_moments(lay, st, p, V)}, by_phase=True)
-    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g["pm"], dtype))      # (n_phases, n_nodes)
+    g = scatter_named(
+        lay,
+        st,
+        {"vol": w * V[:, None, None], "kvol": w * (V * kappa)[:, None, None], "pm": pressure_moments(lay, st, p, V)},
+        by_phase=True,
+    )
+    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g["pm"], dtype))  # (n_phases, n_nodes)
     return interpolate(st, lay.phase, p_amb[..., None])[:, 0]
 
 
@@ -104,7 +109,7 @@ def nodal_common_pressure(lay, g, moments, dtype):
     w = _shared_weight(lay, dtype)
     shared = theta if w is None else theta * w
     p = fields.common_pressure(shared, kappa, P)
-    if lay.scene.continuity_form == "transport":   # fields in contact push, they do not pull (E7)
+    if lay.scene.continuity_form == "transport":  # fields in contact push, they do not pull (E7)
         p = contact_onset(p, onset_pressure(shared, kappa))
     return p
 
@@ -115,7 +120,7 @@ def onset_pressure(theta, kappa):
     and 27 MPa for aluminium), far above the round-off of a pressure near zero (about eps K) and far
     below the pressures of a contact."""
     K = fields.safe_div(jnp.sum(theta, 0), jnp.sum(theta * kappa, 0), 0.0)
-    return jnp.where(K > 0, jnp.sqrt(jnp.finfo(K.dtype).eps) * K, 1.0)     # 1 Pa at empty nodes (p = 0 there)
+    return jnp.where(K > 0, jnp.sqrt(jnp.finfo(K.dtype).eps) * K, 1.0)  # 1 Pa at empty nodes (p = 0 there)
 
 
 def contact_onset(p, p_on):
@@ -145,7 +150,7 @@ def contact_onset(p, p_on):
 def _shared_weight(lay, dtype):
     """(K, 1) 1 for the fields that share the common pressure, 0 for the others; None when all do.
     Fields outside scene.pressure_fields feel the drag only: no part in p_n, in I or in (E7)."""
-    shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)               # static (K,)
+    shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)  # static (K,)
     return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
 
 
@@ -243,8 +248,14 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
     def solve(m, vol, v, V_n):
         theta = vol / V_n[None]
         rho = fields.safe_div(m, vol, 0.0)
-        K = fields.drag_rows(theta, rho, v, params.drag_coefficient if scene.drag is not None else None,
-                             params.drag_length, params.linear_drag if scene.linear_drag is not None else None)
+        K = fields.drag_rows(
+            theta,
+            rho,
+            v,
+            params.drag_coefficient if scene.drag is not None else None,
+            params.drag_length,
+            params.linear_drag if scene.linear_drag is not None else None,
+        )
         return fields.exchange(m, v, K, dt, V_n, m_min, impulses)
 
     def zeros(v):
@@ -256,29 +267,40 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
     nodes = tuple(scene.grid.nodes)
     size = tuple(c + 1 for c in scene.window)
     K, d = m.shape[0], len(nodes)
-    shared = (jnp.sum(vol > 0, 0) >= 2).reshape((1,) + nodes).astype(m.dtype)    # nodes where K_kj can be nonzero
+    shared = (jnp.sum(vol > 0, 0) >= 2).reshape((1,) + nodes).astype(m.dtype)  # nodes where K_kj can be nonzero
     origin, fits = ddmp.window_origin(shared, size)
     origin = jnp.broadcast_to(origin, (K, d))
     on = (dt > 0) & fits[0]
 
     def take():
         def block(a):
-            return ddmp.take_window(a.reshape((a.shape[0],) + nodes + a.shape[2:]), origin, size).reshape((K, -1) + a.shape[2:])
+            return ddmp.take_window(a.reshape((a.shape[0],) + nodes + a.shape[2:]), origin, size).reshape(
+                (K, -1) + a.shape[2:]
+            )
+
         return block(m), block(vol), block(v), block(V_n[None])[0]
 
-    def nothing():   # no mass: the solve gives zero (its result is not used)
+    def nothing():  # no mass: the solve gives zero (its result is not used)
         n = int(np.prod(size))
-        return jnp.zeros((K, n), m.dtype), jnp.zeros((K, n), m.dtype), jnp.zeros((K, n, d), m.dtype), jnp.ones((n,), m.dtype)
+        return (
+            jnp.zeros((K, n), m.dtype),
+            jnp.zeros((K, n), m.dtype),
+            jnp.zeros((K, n, d), m.dtype),
+            jnp.ones((n,), m.dtype),
+        )
 
-    F_block = solve(*jax.lax.cond(on, take, nothing))    # taken under the conditional: kept as arrays (see ddmp._on_windows)
+    F_block = solve(
+        *jax.lax.cond(on, take, nothing)
+    )  # taken under the conditional: kept as arrays (see ddmp._on_windows)
 
     def place():
-        def put(a):   # F (K, ...) or the pair impulses (P, ...), all on the one block
+        def put(a):  # F (K, ...) or the pair impulses (P, ...), all on the one block
             at = jnp.broadcast_to(origin[:1], (a.shape[0], d))
             return ddmp.put_window(a.reshape(a.shape[:1] + size + (d,)), at, nodes).reshape(a.shape[:1] + v.shape[1:])
+
         return tuple(put(a) for a in F_block) if impulses else put(F_block)
 
-    @jax.checkpoint   # differentiated: its residuals are its inputs (see ddmp._on_windows)
+    @jax.checkpoint  # differentiated: its residuals are its inputs (see ddmp._on_windows)
     def whole(m, vol, v):
         return jax.lax.cond(dt > 0, lambda: solve(m, vol, v, V_n), lambda: zeros(v))
 

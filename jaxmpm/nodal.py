@@ -5,6 +5,7 @@ and the nodes' support volumes.
 Shapes: N particles, S stencil nodes, K velocity fields, d dimensions; `lay` is a
 jaxmpm.step.Layout. SI units.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,7 +30,7 @@ def scatter_named(lay, st, parts, by_phase=False):
     g = lay.particle_sum(scatter(st, index, jnp.concatenate([parts[k] for k in names], -1), count, lay.n_nodes))
     out, i = {}, 0
     for k, c in zip(names, sizes):
-        out[k] = g[..., i:i + c]
+        out[k] = g[..., i : i + c]
         i += c
     return out
 
@@ -78,7 +79,9 @@ def nodal_stress_force(lay, dg, g):
     f = g["f"]
     grid = lay.scene.grid
     if "shv" in g:
-        return f + ddmp.nodal_stress_force(grid, dg, g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))).reshape(f.shape)
+        return f + ddmp.nodal_stress_force(grid, dg, g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))).reshape(
+            f.shape
+        )
     return f
 
 
@@ -87,8 +90,13 @@ def ddmp_operators(lay, st, nodal_volume, dtype, volume):
     particle volumes (N,) at stencil st; on each field's block of scene.window cells if set."""
     scene = lay.scene
     cells = lay.particle_sum(cell_sum(st, lay.field, lay.n_fields, math.prod(scene.grid.cells), volume.astype(dtype)))
-    return ddmp.build(scene.grid, nodal_volume.reshape(grid_shape(lay)),
-                      cells.reshape((lay.n_fields,) + scene.grid.cells), scene.axisymmetric, scene.window)
+    return ddmp.build(
+        scene.grid,
+        nodal_volume.reshape(grid_shape(lay)),
+        cells.reshape((lay.n_fields,) + scene.grid.cells),
+        scene.axisymmetric,
+        scene.window,
+    )
 
 
 def node_volume(lay, dtype):

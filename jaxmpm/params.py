@@ -16,6 +16,7 @@
 
 Edit with `dataclasses.replace` or `Params.with_constant`.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -60,8 +61,23 @@ class Params:
 
 
 jax.tree_util.register_dataclass(
-    Params, data_fields=["phases", "gravity", "gravity_ramp", "damping", "body_force", "cfl", "drag_coefficient",
-                         "drag_length", "linear_drag", "c_h", "av_linear", "av_quadratic"], meta_fields=[])
+    Params,
+    data_fields=[
+        "phases",
+        "gravity",
+        "gravity_ramp",
+        "damping",
+        "body_force",
+        "cfl",
+        "drag_coefficient",
+        "drag_length",
+        "linear_drag",
+        "c_h",
+        "av_linear",
+        "av_quadratic",
+    ],
+    meta_fields=[],
+)
 
 
 def default_params(scene, dtype=None) -> Params:
@@ -70,7 +86,9 @@ def default_params(scene, dtype=None) -> Params:
     from jaxmpm.scene import Scene
 
     if not isinstance(scene, Scene):
-        raise TypeError(f"scene = {scene!r} is invalid: allowed a Scene (jaxmpm.load_scene(name) builds a built-in one)")
+        raise TypeError(
+            f"scene = {scene!r} is invalid: allowed a Scene (jaxmpm.load_scene(name) builds a built-in one)"
+        )
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
     allowed = ("float32", "float64") if jax.config.jax_enable_x64 else ("float32",)
     try:
@@ -78,8 +96,10 @@ def default_params(scene, dtype=None) -> Params:
     except TypeError:
         name = repr(dtype)
     if name not in allowed:
-        raise ValueError(f"dtype = {name} is invalid: allowed {' or '.join(allowed)}"
-                         + ("" if jax.config.jax_enable_x64 else " (float64 after jax.config.update('jax_enable_x64', True))"))
+        raise ValueError(
+            f"dtype = {name} is invalid: allowed {' or '.join(allowed)}"
+            + ("" if jax.config.jax_enable_x64 else " (float64 after jax.config.update('jax_enable_x64', True))")
+        )
     f = lambda v: jnp.asarray(v, dtype=dtype)
     d = scene.dim
     phases = {p.name: {k: f(v) for k, v in scene.material(p).constants} for p in scene.phases}
@@ -107,12 +127,26 @@ def _check_shapes(params: Params, d: int) -> None:
     """One run's Params hold scalars (and (d,) vectors for gravity and the body forces, checked
     with their values); an ensemble's batch is checked member by member."""
     leaves = [(f"params.phases[{p!r}][{k!r}]", v, ()) for p, c in params.phases.items() for k, v in c.items()]
-    leaves += [(f"params.{n}", getattr(params, n), ()) for n in ("gravity_ramp", "damping", "cfl", "drag_coefficient",
-                                                                  "drag_length", "linear_drag", "c_h", "av_linear", "av_quadratic")]
+    leaves += [
+        (f"params.{n}", getattr(params, n), ())
+        for n in (
+            "gravity_ramp",
+            "damping",
+            "cfl",
+            "drag_coefficient",
+            "drag_length",
+            "linear_drag",
+            "c_h",
+            "av_linear",
+            "av_quadratic",
+        )
+    ]
     for name, value, shape in leaves:
         if _is_concrete(value) and np.shape(value) != shape:
-            raise ValueError(f"{name} has shape {np.shape(value)}: allowed a number "
-                             "(one run's Params; an ensemble takes a batch of them, jaxmpm.batch.sweep / stack)")
+            raise ValueError(
+                f"{name} has shape {np.shape(value)}: allowed a number "
+                "(one run's Params; an ensemble takes a batch of them, jaxmpm.batch.sweep / stack)"
+            )
 
 
 def check_params(scene, params: Params) -> None:
@@ -129,8 +163,10 @@ def check_params(scene, params: Params) -> None:
         model = scene.material(p).model
         missing = sorted(set(model_of(model).constants) - set(params.phases[p.name]))
         if missing:
-            raise ValueError(f"params.phases[{p.name!r}][{missing[0]!r}] is missing: model {model!r} needs "
-                             f"{sorted(model_of(model).constants)}")
+            raise ValueError(
+                f"params.phases[{p.name!r}][{missing[0]!r}] is missing: model {model!r} needs "
+                f"{sorted(model_of(model).constants)}"
+            )
         for k, v in params.phases[p.name].items():
             if k not in model_of(model).constants:
                 raise ValueError(f"params.phases[{p.name!r}][{k!r}] is not a constant of model {model!r}")
@@ -141,13 +177,20 @@ def check_params(scene, params: Params) -> None:
         for x in np.atleast_1d(np.asarray(params.cfl, dtype=float)):
             if not 0 < x <= 1:
                 raise ValueError(f"params.cfl = {float(x)!r} is invalid: allowed (0, 1]")
-    for name, value in (("gravity", params.gravity), *((f"body_force[{k!r}]", b) for k, b in params.body_force.items())):
+    for name, value in (
+        ("gravity", params.gravity),
+        *((f"body_force[{k!r}]", b) for k, b in params.body_force.items()),
+    ):
         if _is_concrete(value):
             a = np.asarray(value)
             if a.shape != (d,) or not np.all(np.isfinite(a)):
-                raise ValueError(f"params.{name} = {a.tolist()} is invalid: allowed {d} finite numbers (m/s^2, one per axis)")
+                raise ValueError(
+                    f"params.{name} = {a.tolist()} is invalid: allowed {d} finite numbers (m/s^2, one per axis)"
+                )
     if set(params.body_force) != set(scene.phase_names()):
-        raise ValueError(f"params.body_force has phases {sorted(params.body_force)}: the scene has {sorted(scene.phase_names())}")
+        raise ValueError(
+            f"params.body_force has phases {sorted(params.body_force)}: the scene has {sorted(scene.phase_names())}"
+        )
     if _is_concrete(params.gravity_ramp):
         a = np.asarray(params.gravity_ramp)
         if np.any(a < 0) or not np.all(np.isfinite(a)):
@@ -159,22 +202,38 @@ def check_params(scene, params: Params) -> None:
         unused.append("damping (the scene has no damping effect)")
     if not scene.body_force and any(_is_concrete(b) and np.any(np.asarray(b) != 0) for b in params.body_force.values()):
         unused.append("body_force (the scene has body_force = false)")
-    if scene.drag is None and _is_concrete(params.drag_coefficient) and np.any(np.asarray(params.drag_coefficient) != 0):
+    if (
+        scene.drag is None
+        and _is_concrete(params.drag_coefficient)
+        and np.any(np.asarray(params.drag_coefficient) != 0)
+    ):
         unused.append("drag_coefficient (the scene has no drag)")
     if scene.linear_drag is None and _is_concrete(params.linear_drag) and np.any(np.asarray(params.linear_drag) != 0):
         unused.append("linear_drag (the scene has no linear drag)")
     # the numbers of the effects below are read only with their effect: a value other than the
     # placeholder default_params gives them (e.g. a sweep of C_h) would change nothing
-    for name, off, placeholder, why in (("c_h", scene.c_h is None, 1.0, "no closure (effects.c_h)"),
-                                        ("drag_length", scene.drag is None, scene.grid.h, "no drag"),
-                                        ("gravity_ramp", scene.gravity is None, 0.0, "no gravity effect"),
-                                        ("av_linear", scene.viscosity is None, 0.0, "no artificial viscosity"),
-                                        ("av_quadratic", scene.viscosity is None, 0.0, "no artificial viscosity")):
+    for name, off, placeholder, why in (
+        ("c_h", scene.c_h is None, 1.0, "no closure (effects.c_h)"),
+        ("drag_length", scene.drag is None, scene.grid.h, "no drag"),
+        ("gravity_ramp", scene.gravity is None, 0.0, "no gravity effect"),
+        ("av_linear", scene.viscosity is None, 0.0, "no artificial viscosity"),
+        ("av_quadratic", scene.viscosity is None, 0.0, "no artificial viscosity"),
+    ):
         val = getattr(params, name)
-        if off and _is_concrete(val) and not np.allclose(np.asarray(val, dtype=float), placeholder, rtol=1e-6, atol=0.0):
+        if (
+            off
+            and _is_concrete(val)
+            and not np.allclose(np.asarray(val, dtype=float), placeholder, rtol=1e-6, atol=0.0)
+        ):
             unused.append(f"{name} (the scene has {why})")
-    for name, positive in (("drag_coefficient", False), ("drag_length", True), ("linear_drag", False), ("c_h", True),
-                           ("av_linear", False), ("av_quadratic", False)):
+    for name, positive in (
+        ("drag_coefficient", False),
+        ("drag_length", True),
+        ("linear_drag", False),
+        ("c_h", True),
+        ("av_linear", False),
+        ("av_quadratic", False),
+    ):
         val = getattr(params, name)
         if _is_concrete(val):
             a = np.asarray(val)

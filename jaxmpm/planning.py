@@ -1,6 +1,7 @@
 """The arguments of a run, checked on the host, and its steps planned: counts, times (s), the CFL
 step at a state and a user's dt against it, the memory a grid needs, and `plan_steps`, the
 fixed step count that `simulate(n_steps=...)` needs inside jit/grad/vmap."""
+
 from __future__ import annotations
 
 import math
@@ -17,7 +18,9 @@ def count(name: str, value, minimum: int = 1) -> int:
     """An integer >= minimum given as an integer or an integral float; ValueError naming the
     argument for anything else (a fraction is not truncated, a string is not a number)."""
     if not isinstance(value, bool):
-        if isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer()):
+        if isinstance(value, (int, np.integer)) or (
+            isinstance(value, (float, np.floating)) and float(value).is_integer()
+        ):
             if int(value) >= minimum:
                 return int(value)
     raise ValueError(f"{name} = {value!r} is invalid: allowed an integer >= {minimum}")
@@ -30,7 +33,9 @@ def check_t_end(t_end, t0) -> float:
             raise TypeError
         t_end = float(t_end)
     except (TypeError, ValueError):
-        raise ValueError(f"t_end = {t_end!r} is invalid: allowed a number of seconds > state.t = {float(t0)} s") from None
+        raise ValueError(
+            f"t_end = {t_end!r} is invalid: allowed a number of seconds > state.t = {float(t0)} s"
+        ) from None
     if not (math.isfinite(t_end) and t_end > float(t0)):
         raise ValueError(f"t_end = {t_end!r} is invalid: allowed a finite time > state.t = {float(t0)} s")
     return t_end
@@ -39,7 +44,7 @@ def check_t_end(t_end, t0) -> float:
 def seconds(name: str, value) -> float:
     """A time argument (s) as a float; ValueError naming it where it is not a number."""
     try:
-        if isinstance(value, (bool, str, bytes)):      # "1e-3" is text, not a time: say so rather than parse it
+        if isinstance(value, (bool, str, bytes)):  # "1e-3" is text, not a time: say so rather than parse it
             raise TypeError
         return float(value)
     except (TypeError, ValueError):
@@ -55,9 +60,11 @@ def host_cfl_step(scene, params, state, cfl=None, checked=False) -> float:
         check_state(scene, state)
     dt = float(cfl_time_step(scene, params, state, cfl))
     if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"the CFL time step at t = {float(state.t):g} s is {dt!r}: allowed a finite time > 0 s; a "
-                         f"particle or wave speed is not finite or too large for {np.asarray(state.v).dtype} (largest "
-                         f"velocity component: {float(np.abs(np.asarray(state.v)).max()):g} m/s; h = {scene.grid.h:g} m)")
+        raise ValueError(
+            f"the CFL time step at t = {float(state.t):g} s is {dt!r}: allowed a finite time > 0 s; a "
+            f"particle or wave speed is not finite or too large for {np.asarray(state.v).dtype} (largest "
+            f"velocity component: {float(np.abs(np.asarray(state.v)).max()):g} m/s; h = {scene.grid.h:g} m)"
+        )
     return dt
 
 
@@ -70,14 +77,18 @@ def check_dt(scene, params, state, dt) -> None:
     """ValueError if a user-given dt exceeds the CFL limit params.cfl * h / max(c + |v|)."""
     limit = host_cfl_step(scene, params, state, checked=True)
     if not dt > 0:
-        raise ValueError(f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})")
+        raise ValueError(
+            f"dt = {dt!r} is invalid: allowed (0, {limit:.6g}] s (the CFL limit at cfl = {float(params.cfl):g})"
+        )
     if dt > limit * (1 + 1e-12):
-        raise ValueError(f"dt = {dt:.6g} s is above the CFL limit: allowed (0, {limit:.6g}] s "
-                         f"(params.cfl = {float(params.cfl):g} times cfl_limit = {limit / float(params.cfl):.6g} s, "
-                         f"h = {scene.grid.h:g} m)")
+        raise ValueError(
+            f"dt = {dt:.6g} s is above the CFL limit: allowed (0, {limit:.6g}] s "
+            f"(params.cfl = {float(params.cfl):g} times cfl_limit = {limit / float(params.cfl):.6g} s, "
+            f"h = {scene.grid.h:g} m)"
+        )
 
 
-NUMBERS_PER_NODE = 16     # a lower bound: a step holds far more per node and velocity field than this
+NUMBERS_PER_NODE = 16  # a lower bound: a step holds far more per node and velocity field than this
 
 
 def available_memory() -> int | None:
@@ -116,17 +127,21 @@ def check_scene_memory(scene, itemsize: int = 8) -> None:
     nodes = math.prod(c + 1 for c in scene.grid.cells)
     need = nodes * scene.n_fields * NUMBERS_PER_NODE * itemsize
     if need > avail:
-        raise ValueError(f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
-                         f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
-                         "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)")
+        raise ValueError(
+            f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
+            f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
+            "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)"
+        )
     for phase in scene.phases:
         points = lattice_points(scene.grid, phase)
-        need = points * scene.dim * 8          # sampled in float64 on the host
+        need = points * scene.dim * 8  # sampled in float64 on the host
         if need > avail:
-            raise ValueError(f"phase.{phase.name}.ppc = {phase.ppc} is invalid with grid.h = {scene.grid.h:g} m: sampling "
-                             f"lays {points:,} particle positions over the phase's bounding box, more than "
-                             f"{need / 2**30:.1f} GiB of memory where {avail / 2**30:.1f} GiB are available (allowed fewer "
-                             "particles: a smaller ppc, or a larger h with --opt resolution / grid.h)")
+            raise ValueError(
+                f"phase.{phase.name}.ppc = {phase.ppc} is invalid with grid.h = {scene.grid.h:g} m: sampling "
+                f"lays {points:,} particle positions over the phase's bounding box, more than "
+                f"{need / 2**30:.1f} GiB of memory where {avail / 2**30:.1f} GiB are available (allowed fewer "
+                "particles: a smaller ppc, or a larger h with --opt resolution / grid.h)"
+            )
 
 
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
@@ -150,8 +165,10 @@ def _planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
         check_dt(scene, params, state, dt)
         return max(1, math.ceil(span / dt * (1 + 1e-9)))
     if isinstance(safety, bool) or not (isinstance(safety, numbers.Real) and math.isfinite(safety) and safety >= 1):
-        raise ValueError(f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
-                         "at the initial CFL step)")
+        raise ValueError(
+            f"safety = {safety!r} is invalid: allowed a number >= 1 (the factor of steps over the plan "
+            "at the initial CFL step)"
+        )
     return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
 
 
@@ -167,7 +184,9 @@ def acceleration_bound(scene, params, state, dt=None) -> None:
         accel.append(("gravity", np.asarray(params.gravity, float)))
     if getattr(scene, "body_force", False):
         g = np.asarray(params.gravity, float) if scene.gravity is not None else 0.0
-        accel += [(f"gravity + params.body_force['{k}']", g + np.asarray(v, float)) for k, v in params.body_force.items()]
+        accel += [
+            (f"gravity + params.body_force['{k}']", g + np.asarray(v, float)) for k, v in params.body_force.items()
+        ]
     if not accel:
         return
     step = float(dt) if dt is not None else host_cfl_step(scene, params, state, checked=True)
@@ -179,13 +198,18 @@ def acceleration_bound(scene, params, state, dt=None) -> None:
                 f"{name} = {a.tolist()} m/s^2 is too large for the grid and time step: in one step of "
                 f"dt = {step:.3g} s it moves a particle at rest {size * step**2:.3g} m, more than a cell "
                 f"(h = {h:g} m): allowed |{name}| <= h / dt^2 = {h / step**2:.3g} m/s^2 (or a smaller time step: "
-                "a smaller cfl or a fixed dt)")
+                "a smaller cfl or a fixed dt)"
+            )
 
 
 def _free_faces(scene) -> set:
     """The grid faces ('x_lo', ...) without a wall (free: a particle through them leaves the grid)."""
     walls = {face for face, kind in getattr(scene.boundary, "faces", ()) if kind != "free"}
-    return {f"{a}_{s}" for a in "xyz"[:scene.dim] for s in ("lo", "hi")} - walls - ({"x_lo"} if scene.axisymmetric else set())
+    return (
+        {f"{a}_{s}" for a in "xyz"[: scene.dim] for s in ("lo", "hi")}
+        - walls
+        - ({"x_lo"} if scene.axisymmetric else set())
+    )
 
 
 def flight_warnings(scene, state, t_end) -> list[str]:
@@ -215,15 +239,17 @@ def flight_warnings(scene, state, t_end) -> list[str]:
                 first = min(first, float(np.min(t_lo[:, axis])))
         if first < span:
             speed = float(np.max(np.linalg.norm(vs, axis=1)))
-            out.append(f"phase {phase.name!r} moves at up to {speed:.3g} m/s: unstopped, it would leave the grid through a "
-                       f"face without a wall at t = {float(state.t) + first:.3g} s, before t_end = {float(t_end):g} s "
-                       "(a particle outside the grid stops the run: check the speed's units, or enlarge the grid or add walls)")
+            out.append(
+                f"phase {phase.name!r} moves at up to {speed:.3g} m/s: unstopped, it would leave the grid through a "
+                f"face without a wall at t = {float(state.t) + first:.3g} s, before t_end = {float(t_end):g} s "
+                "(a particle outside the grid stops the run: check the speed's units, or enlarge the grid or add walls)"
+            )
     return out
 
 
 # --- the run's plan and its time estimate ------------------------------------------------------
 
-MAX_MINUTES = 60.0            # a run estimated to take longer asks for confirmation (yes=True, --yes)
+MAX_MINUTES = 60.0  # a run estimated to take longer asks for confirmation (yes=True, --yes)
 MAX_MINUTES_ENV = "JAXMPM_MAX_MINUTES"
 
 
@@ -271,7 +297,9 @@ def particle_numbers(scene) -> int:
     return 2 * d + 3 + 2 * tensor
 
 
-def run_memory(scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None) -> tuple[int, int, int]:
+def run_memory(
+    scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None
+) -> tuple[int, int, int]:
     """(total, per state, grid) bytes a host-driven run needs at least: the n_out + 1 states of its
     history and the one it advances (`particle_numbers` per particle, or `state_bytes` each), and
     the grid at NUMBERS_PER_NODE numbers per node and velocity field."""
@@ -286,10 +314,12 @@ def check_run_memory(scene, particles: int, n_out: int, itemsize: int, state_byt
     avail = available_memory()
     total, per_state, grid = run_memory(scene, particles, n_out, itemsize, state_bytes)
     if avail is not None and total > avail:
-        raise ValueError(f"n_out = {n_out} with {particles:,} particles and grid.cells = {list(scene.grid.cells)} is "
-                         f"invalid here: the run keeps {int(n_out) + 1} states of {_size(per_state)} and a grid of at least "
-                         f"{_size(grid)}, {_size(total)} in all, more than the {_size(avail)} of memory available (allowed "
-                         "fewer outputs, or fewer particles: a larger h with --opt resolution / grid.h)")
+        raise ValueError(
+            f"n_out = {n_out} with {particles:,} particles and grid.cells = {list(scene.grid.cells)} is "
+            f"invalid here: the run keeps {int(n_out) + 1} states of {_size(per_state)} and a grid of at least "
+            f"{_size(grid)}, {_size(total)} in all, more than the {_size(avail)} of memory available (allowed "
+            "fewer outputs, or fewer particles: a larger h with --opt resolution / grid.h)"
+        )
 
 
 class RunPlan:
@@ -307,7 +337,7 @@ class RunPlan:
         self.itemsize = np.dtype(state.x.dtype).itemsize
         self.state_bytes = sum(int(np.prod(np.shape(a))) * np.dtype(a.dtype).itemsize for a in _leaves(state))
         self.memory = run_memory(scene, self.particles, self.n_out, self.itemsize, self.state_bytes)[0]
-        compile_seconds()                       # listening for compilations from here on
+        compile_seconds()  # listening for compilations from here on
         self.steps = _planned_steps(scene, params, state, t_end, dt, safety=1.0)
         self.seconds = None
 
@@ -317,36 +347,46 @@ class RunPlan:
 
     def text(self) -> str:
         s = self.scene
-        return (f"plan: {self.particles:,} particles, {self.nodes:,} nodes x {s.n_fields} velocity field(s), about "
-                f"{self.steps:,} steps to t = {self.t_end:g} s (at the initial CFL step), memory at least "
-                f"{_size(self.memory)}; time estimated after the first chunk (runs over {self.minutes:g} min "
-                "need --yes)")
+        return (
+            f"plan: {self.particles:,} particles, {self.nodes:,} nodes x {s.n_fields} velocity field(s), about "
+            f"{self.steps:,} steps to t = {self.t_end:g} s (at the initial CFL step), memory at least "
+            f"{_size(self.memory)}; time estimated after the first chunk (runs over {self.minutes:g} min "
+            "need --yes)"
+        )
 
     def first_chunk(self, steps: int, seconds: float, compile_seconds: float) -> None:
         """The time of the whole run from its first chunk of `steps` steps, which took `seconds`
         (compilation excluded); reported, and a ValueError where it exceeds the threshold unconfirmed."""
         per_step = max(seconds, 0.0) / max(int(steps), 1)
         self.seconds = per_step * self.steps
-        line = (f"first chunk: {steps} steps in {seconds:.3g} s (compilation {compile_seconds:.3g} s): the run's "
-                f"{self.steps:,} steps take about {_duration(self.seconds)}")
+        line = (
+            f"first chunk: {steps} steps in {seconds:.3g} s (compilation {compile_seconds:.3g} s): the run's "
+            f"{self.steps:,} steps take about {_duration(self.seconds)}"
+        )
         if self.report is not None:
             self.report(line)
         if self.seconds > 60 * self.minutes and not self.yes:
-            raise ValueError(f"{self.scene.name}: the run is estimated to take about {_duration(self.seconds)} "
-                             f"({self.steps:,} steps to t_end = {self.t_end:g} s at {per_step:.3g} s per step, from its "
-                             f"first chunk), over the {self.minutes:g} min allowed without confirmation: run it with "
-                             f"--yes (Python: yes=True), or raise --max-minutes (max_minutes=, ${MAX_MINUTES_ENV}), or "
-                             "make it smaller (a shorter t_end, a coarser resolution)")
+            raise ValueError(
+                f"{self.scene.name}: the run is estimated to take about {_duration(self.seconds)} "
+                f"({self.steps:,} steps to t_end = {self.t_end:g} s at {per_step:.3g} s per step, from its "
+                f"first chunk), over the {self.minutes:g} min allowed without confirmation: run it with "
+                f"--yes (Python: yes=True), or raise --max-minutes (max_minutes=, ${MAX_MINUTES_ENV}), or "
+                "make it smaller (a shorter t_end, a coarser resolution)"
+            )
 
 
 def _leaves(state):
     import jax
+
     return [a for a in jax.tree.leaves(state) if a is not None]
 
 
 _COMPILE = {"seconds": 0.0, "listening": False}
-_COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                   "/jax/core/compile/backend_compile_duration")
+_COMPILE_EVENTS = (
+    "/jax/core/compile/jaxpr_trace_duration",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration",
+    "/jax/core/compile/backend_compile_duration",
+)
 
 
 def compile_seconds() -> float:

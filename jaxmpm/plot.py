@@ -1,4 +1,5 @@
 """PNG plots of a State (`plot_state`, also `jaxmpm.io.plot_state`)."""
+
 from __future__ import annotations
 
 import os
@@ -22,20 +23,27 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     path = Path(path)
     if path.suffix != ".png":
         raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in .png")
-    check_new(path, overwrite=overwrite)              # and it is not a directory, even with overwrite
+    check_new(path, overwrite=overwrite)  # and it is not a directory, even with overwrite
     _check_scene(scene)
     if not isinstance(state, State):
-        raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State (one State, e.g. "
-                         "jax.tree.map(lambda a: a[-1], history))")
+        raise ValueError(
+            f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State (one State, e.g. "
+            "jax.tree.map(lambda a: a[-1], history))"
+        )
     x = np.asarray(state.x)
     if x.ndim != 2:
         raise ValueError(f"state.x has shape {x.shape}: plot one State, e.g. jax.tree.map(lambda a: a[-1], history)")
     n = phase_slices(scene)[-1].stop
     if x.shape != (n, scene.dim):
-        raise ValueError(f"state has {x.shape[0]} particles in {x.shape[1]}D: the scene {scene.name!r} has "
-                         f"{n} particles in {scene.dim}D")
-    _check_shapes(scene, {k: np.asarray(getattr(state, k)) for k in ("x", "v", "stress", "damage")
-                          if getattr(state, k) is not None}, "state")
+        raise ValueError(
+            f"state has {x.shape[0]} particles in {x.shape[1]}D: the scene {scene.name!r} has "
+            f"{n} particles in {scene.dim}D"
+        )
+    _check_shapes(
+        scene,
+        {k: np.asarray(getattr(state, k)) for k in ("x", "v", "stress", "damage") if getattr(state, k) is not None},
+        "state",
+    )
     if np.shape(state.t) != ():
         raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
     v, stress, d = np.asarray(state.v), np.asarray(state.stress), scene.dim
@@ -58,25 +66,32 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
         width = 6.5
         span = hi[:2] - lo[:2]
         damage = None if state.damage is None else np.asarray(state.damage)
-        cracked = damage is not None and bool(np.any(damage > 0))      # a second panel: damage (the crack pattern)
+        cracked = damage is not None and bool(np.any(damage > 0))  # a second panel: damage (the crack pattern)
         ratio = span[1] / span[0]
         panel_h = max(2.5, min(9.0, width * ratio))
-        panel_w = min(width, max(2.0, panel_h / ratio + 1.2))    # as wide as the grid's aspect asks, with labels
-        fig = Figure(figsize=(panel_w * (2 if cracked else 1) + (1.0 if cracked else 0.0), panel_h + 0.6),
-                     layout="constrained")
+        panel_w = min(width, max(2.0, panel_h / ratio + 1.2))  # as wide as the grid's aspect asks, with labels
+        fig = Figure(
+            figsize=(panel_w * (2 if cracked else 1) + (1.0 if cracked else 0.0), panel_h + 0.6), layout="constrained"
+        )
         axes = fig.subplots(1, 2 if cracked else 1, squeeze=False)[0]
         spacing = min(scene.grid.h / p.ppc for p in scene.phases)
         size = max(0.3, (0.75 * width * 72 * spacing / span[0]) ** 2)
         ax = axes[0]
         for phase, sl, c in zip(scene.phases, phase_slices(scene), colors):
-            ax.scatter(x[sl, 0], x[sl, 1], s=size, color=c, label=phase.name, linewidths=0,
-                       alpha=1.0 if d == 2 else 0.4)
-        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=min(4, len(scene.phases)),
-                   fontsize="small", markerscale=max(1.0, 20 / size), frameon=False)     # outside the data
+            ax.scatter(
+                x[sl, 0], x[sl, 1], s=size, color=c, label=phase.name, linewidths=0, alpha=1.0 if d == 2 else 0.4
+            )
+        fig.legend(
+            *ax.get_legend_handles_labels(),
+            loc="outside lower center",
+            ncols=min(4, len(scene.phases)),
+            fontsize="small",
+            markerscale=max(1.0, 20 / size),
+            frameon=False,
+        )  # outside the data
         ax.set_title(title + ("" if d == 2 else " (projection on x-y)"))
         if cracked:
-            sc = axes[1].scatter(x[:, 0], x[:, 1], s=size, c=damage, cmap="coolwarm", vmin=0.0, vmax=1.0,
-                                 linewidths=0)
+            sc = axes[1].scatter(x[:, 0], x[:, 1], s=size, c=damage, cmap="coolwarm", vmin=0.0, vmax=1.0, linewidths=0)
             fig.colorbar(sc, ax=axes[1], label="damage (1: failed)")
             axes[1].set_title(f"damage: {float(np.mean(damage >= 1.0)):.1%} of the particles failed")
         for ax in axes:
@@ -98,7 +113,7 @@ def _field_values(scene, state, field: str) -> np.ndarray:
     state's, else -tr(stress)/3 or /d), damage (0..1), phase (its index in the scene)."""
     if field == "speed":
         v = np.asarray(state.v)
-        return v[:, 0] if v.shape[-1] == 1 else np.linalg.norm(v, axis=-1)     # 1D: the signed velocity
+        return v[:, 0] if v.shape[-1] == 1 else np.linalg.norm(v, axis=-1)  # 1D: the signed velocity
     if field == "pressure":
         if state.pressure is not None:
             return np.asarray(state.pressure)
@@ -109,7 +124,12 @@ def _field_values(scene, state, field: str) -> np.ndarray:
     return np.concatenate([np.full(sl.stop - sl.start, i, float) for i, sl in enumerate(phase_slices(scene))])
 
 
-FIELD_LABELS = {"speed": "speed |v| (m/s)", "pressure": "pressure (Pa)", "damage": "damage (1: failed)", "phase": "phase"}
+FIELD_LABELS = {
+    "speed": "speed |v| (m/s)",
+    "pressure": "pressure (Pa)",
+    "damage": "damage (1: failed)",
+    "phase": "phase",
+}
 
 
 def _limits(values, field):
@@ -172,9 +192,9 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
     else:
         span = hi[:2] - lo[:2]
         aspect = float(span[0] / span[1])
-        panel_h = 3.2 if 3.2 * aspect >= 1.6 else min(7.0, 1.6 / aspect)    # a tall grid: taller panels
+        panel_h = 3.2 if 3.2 * aspect >= 1.6 else min(7.0, 1.6 / aspect)  # a tall grid: taller panels
         panel_w = min(6.0, panel_h * aspect)
-        panel_h = panel_w / aspect                                          # a wide grid: shorter panels
+        panel_h = panel_w / aspect  # a wide grid: shorter panels
         fig = Figure(figsize=(max(6.0, len(picks) * (panel_w + 0.45) + 1.5), panel_h + 3.4), layout="constrained")
         top, bottom = fig.subfigures(2, 1, height_ratios=(panel_h + 0.6, 2.8))
         axes = top.subplots(1, len(picks), sharex=True, sharey=True, squeeze=False)[0]
@@ -183,18 +203,30 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
         cmap = {"speed": "viridis", "pressure": "coolwarm", "damage": "magma", "phase": "tab10"}[field]
         for ax, i, v in zip(axes, picks, values):
             x = x_all[i]
-            sc = ax.scatter(x[:, 0], x[:, 1], s=size, c=v, cmap=cmap, vmin=lo_c if field != "phase" else -0.5,
-                            vmax=hi_c if field != "phase" else 9.5, linewidths=0, alpha=1.0 if d == 2 else 0.4)
+            sc = ax.scatter(
+                x[:, 0],
+                x[:, 1],
+                s=size,
+                c=v,
+                cmap=cmap,
+                vmin=lo_c if field != "phase" else -0.5,
+                vmax=hi_c if field != "phase" else 9.5,
+                linewidths=0,
+                alpha=1.0 if d == 2 else 0.4,
+            )
             ax.set_xlim(lo[0], hi[0])
             ax.set_ylim(lo[1], hi[1])
             ax.set_aspect("equal")
             ax.set_title(f"t = {float(states[i].t):.3g} s", fontsize="medium")
             ax.set_xlabel("r (m)" if scene.axisymmetric else "x (m)")
-            ax.xaxis.set_major_locator(MaxNLocator(max(2, int(panel_w * 1.2))))     # labels that do not overlap
+            ax.xaxis.set_major_locator(MaxNLocator(max(2, int(panel_w * 1.2))))  # labels that do not overlap
         axes[0].set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
         if field == "phase":
             from matplotlib.lines import Line2D
-            handles = [Line2D([], [], ls="", marker="o", color=f"C{k % 10}", label=p.name) for k, p in enumerate(scene.phases)]
+
+            handles = [
+                Line2D([], [], ls="", marker="o", color=f"C{k % 10}", label=p.name) for k, p in enumerate(scene.phases)
+            ]
             top.legend(handles=handles, loc="outside right upper", fontsize="small", frameon=False)
         else:
             top.colorbar(sc, ax=list(axes), label=FIELD_LABELS[field], shrink=0.9)
@@ -202,8 +234,11 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
         ax_e = bottom.subplots()
     t = [e["t"] for e in energy]
     unit = io_units("kinetic", scene)
-    for key, name in (("kinetic", "kinetic"), ("internal", "internal"),
-                      ("total_energy", "total, with gravity" if scene.gravity is not None else "total")):
+    for key, name in (
+        ("kinetic", "kinetic"),
+        ("internal", "internal"),
+        ("total_energy", "total, with gravity" if scene.gravity is not None else "total"),
+    ):
         ax_e.plot(t, [e[key] for e in energy], ".-", ms=3, label=name)
     ax_e.set_xlabel("t (s)")
     ax_e.set_ylabel(f"energy ({unit})")
@@ -215,16 +250,19 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
 def jax_tree_index(tree, i):
     """The i-th State of a history (the leading axis indexed; None leaves kept)."""
     import jax
+
     return jax.tree.map(lambda a: None if a is None else np.asarray(a)[i], tree)
 
 
 def io_units(name, scene):
     from jaxmpm.io import units
+
     return units(name, scene.dim, scene.axisymmetric)
 
 
-def plot_run(scene, history: State, path, field: str = "speed", panels: int = 4, params=None,
-             overwrite: bool = False) -> Path:
+def plot_run(
+    scene, history: State, path, field: str = "speed", panels: int = 4, params=None, overwrite: bool = False
+) -> Path:
     """PNG of `run_figure` (a field at several times with a colorbar, and energy against time).
     Returns the path; FileExistsError if it exists and not `overwrite`; ValueError for a path
     that does not end in .png, an unknown field, or a history that does not fit the scene."""
@@ -234,8 +272,10 @@ def plot_run(scene, history: State, path, field: str = "speed", panels: int = 4,
     check_new(path, overwrite=overwrite)
     _check_scene(scene)
     if not isinstance(history, State):
-        raise ValueError(f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State with a leading "
-                         "output axis (simulate's history)")
+        raise ValueError(
+            f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State with a leading "
+            "output axis (simulate's history)"
+        )
     x = np.asarray(history.x)
     n = phase_slices(scene)[-1].stop
     if x.ndim != 3 or x.shape[1:] != (n, scene.dim):

@@ -10,6 +10,7 @@ driver defers SIGINT (and, under `jaxmpm run`, SIGTERM) while it runs, so a save
 short by them; SIGKILL or a power cut during one of these in-place saves (milliseconds) can leave
 the file unreadable, as HDF5 writes are not transactions.
 """
+
 from __future__ import annotations
 
 import math
@@ -44,11 +45,15 @@ def _read_tree(group, like, path, what: str):
     ValueError naming the file, the dataset and the leaf where one is missing or its shape or dtype
     is not the one of `like` (built from the scene in the file)."""
     flat, treedef = jax.tree_util.tree_flatten_with_path(like)
-    counts = (f"{group.name} holds {len(group)} arrays, the scene in the file needs {len(flat)} "
-              f"({', '.join(what + jax.tree_util.keystr(k) for k, _ in flat)})")
+    counts = (
+        f"{group.name} holds {len(group)} arrays, the scene in the file needs {len(flat)} "
+        f"({', '.join(what + jax.tree_util.keystr(k) for k, _ in flat)})"
+    )
     for i, (kp, _leaf) in enumerate(flat):
         if not isinstance(group.get(f"{i:04d}"), h5py.Dataset):
-            raise _incomplete(path, f"it has no dataset {group.name}/{i:04d} ({what + jax.tree_util.keystr(kp)}): {counts}")
+            raise _incomplete(
+                path, f"it has no dataset {group.name}/{i:04d} ({what + jax.tree_util.keystr(kp)}): {counts}"
+            )
     if len(group) != len(flat):
         raise ValueError(f"{os.fspath(path)}: {counts}")
     leaves = []
@@ -56,8 +61,10 @@ def _read_tree(group, like, path, what: str):
         ds = group[f"{i:04d}"]
         name = what + jax.tree_util.keystr(kp)
         if ds.shape != leaf.shape or ds.dtype != leaf.dtype:
-            raise ValueError(f"{os.fspath(path)}:{group.name}/{i:04d} ({name}) has shape {ds.shape} and dtype "
-                             f"{ds.dtype}: the scene in the file (/scene) needs shape {leaf.shape} and dtype {leaf.dtype}")
+            raise ValueError(
+                f"{os.fspath(path)}:{group.name}/{i:04d} ({name}) has shape {ds.shape} and dtype "
+                f"{ds.dtype}: the scene in the file (/scene) needs shape {leaf.shape} and dtype {leaf.dtype}"
+            )
         leaves.append(jnp.asarray(ds[()]))
     return jax.tree.unflatten(treedef, leaves)
 
@@ -78,8 +85,9 @@ def _append(path, state, history, next_out) -> bool:
         if done > len(history) or (done and f"{done - 1:04d}" not in hist):
             return False
         datasets = [st.get(f"{i:04d}") for i in range(len(leaves))]
-        if not all(isinstance(d, h5py.Dataset) and d.shape == a.shape and d.dtype == a.dtype
-                   for d, a in zip(datasets, leaves)):
+        if not all(
+            isinstance(d, h5py.Dataset) and d.shape == a.shape and d.dtype == a.dtype for d, a in zip(datasets, leaves)
+        ):
             return False
         for k in range(done, len(history)):
             _write_tree(hist.create_group(f"{k:04d}"), history[k])
@@ -105,8 +113,17 @@ def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chu
 
     with _atomic(Path(path)) as tmp:
         with h5py.File(tmp, "w") as f:
-            f.attrs.update({"jaxmpm_version": __version__, "t0": t0, "t_end": t_end, "n_out": n_out,
-                            "next_out": next_out, "chunk": chunk, "dt": math.nan if dt is None else float(dt)})
+            f.attrs.update(
+                {
+                    "jaxmpm_version": __version__,
+                    "t0": t0,
+                    "t_end": t_end,
+                    "n_out": n_out,
+                    "next_out": next_out,
+                    "chunk": chunk,
+                    "dt": math.nan if dt is None else float(dt),
+                }
+            )
             f.create_dataset("scene", data=scene_to_toml(scene))
             _write_tree(f.create_group("params"), params)
             _write_tree(f.create_group("state"), state)
@@ -121,8 +138,10 @@ def _open(path):
     f = open_h5(path, WHAT)
     try:
         if "t0" not in f.attrs and "state" not in f and any(k.startswith("t") and k[1:].isdigit() for k in f):
-            raise ValueError(f"{os.fspath(path)} is a jaxmpm output file, not a restart file: read it with "
-                             "jaxmpm.io.read; a run resumes from its <name>.restart.h5")
+            raise ValueError(
+                f"{os.fspath(path)} is a jaxmpm output file, not a restart file: read it with "
+                "jaxmpm.io.read; a run resumes from its <name>.restart.h5"
+            )
         scene = f.get("scene")
         if not isinstance(scene, h5py.Dataset) or scene.dtype.kind not in "OSU":
             raise _incomplete(path, "it has no /scene dataset (TOML text)")
@@ -168,8 +187,10 @@ def _number(a, path, name, integer=False):
         ok = False
     if not ok or (integer and not (math.isfinite(x) and x == int(x))):
         shown = v.tolist() if isinstance(v, (np.ndarray, np.generic)) else v
-        raise ValueError(f"{os.fspath(path)}: attribute {name} = {shown!r} is invalid: allowed "
-                         f"{'an integer' if integer else 'a number'}")
+        raise ValueError(
+            f"{os.fspath(path)}: attribute {name} = {shown!r} is invalid: allowed "
+            f"{'an integer' if integer else 'a number'}"
+        )
     return int(x) if integer else x
 
 
@@ -181,18 +202,21 @@ def _driver(a, path) -> dict:
     if not math.isfinite(r["t0"]):
         raise ValueError(f"{where}: attribute t0 = {r['t0']!r} is invalid: allowed a finite time (s)")
     if not (math.isfinite(r["t_end"]) and r["t_end"] > r["t0"]):
-        raise ValueError(f"{where}: attribute t_end = {r['t_end']!r} is invalid: allowed a finite time > "
-                         f"t0 = {r['t0']!r} s")
+        raise ValueError(
+            f"{where}: attribute t_end = {r['t_end']!r} is invalid: allowed a finite time > t0 = {r['t0']!r} s"
+        )
     if r["n_out"] < 1:
         raise ValueError(f"{where}: attribute n_out = {r['n_out']} is invalid: allowed an integer >= 1")
     if not 0 <= r["next_out"] <= r["n_out"]:
-        raise ValueError(f"{where}: attribute next_out = {r['next_out']} is invalid: allowed an integer in "
-                         f"[0, n_out = {r['n_out']}]")
+        raise ValueError(
+            f"{where}: attribute next_out = {r['next_out']} is invalid: allowed an integer in [0, n_out = {r['n_out']}]"
+        )
     if r["chunk"] < 1:
         raise ValueError(f"{where}: attribute chunk = {r['chunk']} is invalid: allowed an integer >= 1 (steps)")
     if not (math.isnan(r["dt"]) or (math.isfinite(r["dt"]) and r["dt"] > 0)):
-        raise ValueError(f"{where}: attribute dt = {r['dt']!r} is invalid: allowed a finite time step > 0 s, "
-                         "or NaN (the CFL step)")
+        raise ValueError(
+            f"{where}: attribute dt = {r['dt']!r} is invalid: allowed a finite time step > 0 s, or NaN (the CFL step)"
+        )
     r["dt"] = None if math.isnan(r["dt"]) else r["dt"]
     return r
 
@@ -221,19 +245,28 @@ def load(path) -> dict:
         drv = _driver(f.attrs, path)
         p_dtype, s_dtype = _dtypes(f, path)
         if np.float64 in (p_dtype, s_dtype) and not jax.config.jax_enable_x64:
-            raise ValueError(f"{where} holds float64 arrays: enable 64-bit JAX before loading it "
-                             "(jax.config.update('jax_enable_x64', True); `jaxmpm run --resume` does this itself)")
+            raise ValueError(
+                f"{where} holds float64 arrays: enable 64-bit JAX before loading it "
+                "(jax.config.update('jax_enable_x64', True); `jaxmpm run --resume` does this itself)"
+            )
         params = _read_tree(f["params"], default_params(scene, dtype=p_dtype), path, "params")
         like_state = init_state(scene, default_params(scene, dtype=s_dtype))
         state = _read_tree(f["state"], like_state, path, "state")
         keys = sorted(f["history"])
-        if keys != [f"{k:04d}" for k in range(len(keys))] or not all(isinstance(f["history"][k], h5py.Group) for k in keys):
-            raise _incomplete(path, f"/history holds {keys[:5]}{'...' if len(keys) > 5 else ''}: allowed groups "
-                                    "0000, 0001, ... (the outputs done)")
+        if keys != [f"{k:04d}" for k in range(len(keys))] or not all(
+            isinstance(f["history"][k], h5py.Group) for k in keys
+        ):
+            raise _incomplete(
+                path,
+                f"/history holds {keys[:5]}{'...' if len(keys) > 5 else ''}: allowed groups "
+                "0000, 0001, ... (the outputs done)",
+            )
         history = [_read_tree(f["history"][k], like_state, path, "state") for k in keys]
     if len(history) != drv["next_out"] + 1:
-        raise ValueError(f"{where}: /history holds {len(history)} states: attribute next_out = {drv['next_out']} "
-                         f"needs {drv['next_out'] + 1} (the initial state and each output done)")
+        raise ValueError(
+            f"{where}: /history holds {len(history)} states: attribute next_out = {drv['next_out']} "
+            f"needs {drv['next_out'] + 1} (the initial state and each output done)"
+        )
     try:
         check_params(scene, params)
     except ValueError as e:
@@ -246,8 +279,10 @@ def load(path) -> dict:
     t = float(state.t)
     slack = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(drv["t_end"]), drv["t_end"] - drv["t0"], abs(drv["t0"]))
     if not drv["t0"] - slack <= t <= drv["t_end"] + slack:
-        raise ValueError(f"{where}: state.t = {t!r} s lies outside the run [t0, t_end] = [{drv['t0']!r}, "
-                         f"{drv['t_end']!r}] s of the attributes t0 and t_end")
+        raise ValueError(
+            f"{where}: state.t = {t!r} s lies outside the run [t0, t_end] = [{drv['t0']!r}, "
+            f"{drv['t_end']!r}] s of the attributes t0 and t_end"
+        )
     return dict(scene=scene, params=params, state=state, history=history, **drv)
 
 
@@ -258,15 +293,30 @@ def resume(path, *, progress=True, restart_every=None):
     from jaxmpm.simulate import _host_driver
 
     if not (restart_every is None or (isinstance(restart_every, (int, np.integer)) and restart_every >= 0)):
-        raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed None or an integer >= 0 "
-                         "(chunks; 0 or None: do not save)")
+        raise ValueError(
+            f"restart_every = {restart_every!r} is invalid: allowed None or an integer >= 0 "
+            "(chunks; 0 or None: do not save)"
+        )
     r = load(path)
-    if r["next_out"] == r["n_out"]:        # the run is complete: its results, nothing to run
+    if r["next_out"] == r["n_out"]:  # the run is complete: its results, nothing to run
         from jaxmpm.simulate import _stack
+
         return r["scene"], r["params"], r["state"], _stack(r["history"])
     dt = None if r["dt"] is None else jnp.asarray(r["dt"], r["state"].t.dtype)
-    final, history = _host_driver(r["scene"], r["params"], r["state"], r["t_end"], r["n_out"], dt, progress, r["chunk"],
-                                  t0=r["t0"], history=r["history"], start_out=r["next_out"],
-                                  restart_file=path if restart_every else None, restart_every=restart_every or 0,
-                                  restart_saved=True)
+    final, history = _host_driver(
+        r["scene"],
+        r["params"],
+        r["state"],
+        r["t_end"],
+        r["n_out"],
+        dt,
+        progress,
+        r["chunk"],
+        t0=r["t0"],
+        history=r["history"],
+        start_out=r["next_out"],
+        restart_file=path if restart_every else None,
+        restart_every=restart_every or 0,
+        restart_saved=True,
+    )
     return r["scene"], r["params"], final, history

@@ -10,6 +10,7 @@ that names the field, the value and the allowed range. The numbers a user may ca
 Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written back to TOML
 (`scene_to_toml`) so every output file says how to reproduce it.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -18,8 +19,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 # the geometry lives in jaxmpm.geometry; its names stay importable from here
-from jaxmpm.geometry import (GEOMETRIES, Box as Box, Difference as Difference, Grid as Grid, Sphere as Sphere,
-                             _fail, _float, _floats, _is_integer, geometry_from_dict as geometry_from_dict)
+from jaxmpm.geometry import (
+    GEOMETRIES,
+    Box as Box,
+    Difference as Difference,
+    Grid as Grid,
+    Sphere as Sphere,
+    _fail,
+    _float,
+    _floats,
+    _is_integer,
+    geometry_from_dict as geometry_from_dict,
+)
 from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of
 
@@ -27,8 +38,8 @@ SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
 BOUNDARIES = ("free", "slip", "fixed")
 AXES = "xyz"
-MAX_PPC = 8   # particles per cell per axis, at most
-FLUID_VISCOSITY = (0.5, 2.0)   # (c_linear, c_quadratic) of the fluid phases' default artificial viscosity
+MAX_PPC = 8  # particles per cell per axis, at most
+FLUID_VISCOSITY = (0.5, 2.0)  # (c_linear, c_quadratic) of the fluid phases' default artificial viscosity
 
 
 def is_fluid(model_name: str) -> bool:
@@ -40,6 +51,7 @@ def is_fluid(model_name: str) -> bool:
     if not model.hydro:
         return False
     from jaxmpm.materials.models import split_model
+
     return not split_model(model_name)[1]
 
 
@@ -84,8 +96,15 @@ class Phase:
 
     def to_dict(self):
         mat = self.material if isinstance(self.material, str) else self.material.key
-        return {"name": self.name, "material": mat, "field": self.field, "ppc": self.ppc, "fraction": self.fraction,
-                "velocity": list(self.velocity), "geometry": self.geometry.to_dict()}
+        return {
+            "name": self.name,
+            "material": mat,
+            "field": self.field,
+            "ppc": self.ppc,
+            "fraction": self.fraction,
+            "velocity": list(self.velocity),
+            "geometry": self.geometry.to_dict(),
+        }
 
 
 @dataclass(frozen=True)
@@ -234,8 +253,11 @@ class Scene:
         dim = self.grid.dim
         for name, kind in (("phases", Phase), ("materials", Material)):
             items = getattr(self, name)
-            if isinstance(items, (str, bytes, Phase, Material)) or not isinstance(items, Iterable) \
-                    or not all(isinstance(x, kind) for x in items):
+            if (
+                isinstance(items, (str, bytes, Phase, Material))
+                or not isinstance(items, Iterable)
+                or not all(isinstance(x, kind) for x in items)
+            ):
                 _fail(name, items, f"a tuple of {kind.__name__}")
         for name in ("name", "description"):
             if not isinstance(getattr(self, name), str):
@@ -255,10 +277,13 @@ class Scene:
             for d in range(dim):
                 lo, hi = self.grid.origin[d], self.grid.hi[d]
                 if d == 0 and self.axisymmetric is True and lo == 0.0:
-                    lo = -hi            # a body on the axis may be given whole (a sphere centred at r = 0)
+                    lo = -hi  # a body on the axis may be given whole (a sphere centred at r = 0)
                 if p.geometry.lo[d] < lo - 1e-12 * abs(hi - lo) or p.geometry.hi[d] > hi + 1e-12 * abs(hi - lo):
-                    _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(),
-                          f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)")
+                    _fail(
+                        f"phase.{p.name}.geometry",
+                        p.geometry.to_dict(),
+                        f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)",
+                    )
         fields = sorted({p.field for p in phases})
         if fields != list(range(len(fields))):
             bad = [p for p in phases if p.field >= len(fields)][0]
@@ -271,9 +296,12 @@ class Scene:
         for p in phases:  # resolves now: an unknown key fails here, listing the known ones
             m = resolve_material(p.material, self.materials, f"phase.{p.name}.material")
             where, other = by_key.setdefault(m.key, (f"phase.{p.name}", m))
-            if other != m:   # a scene file (and every output's /scene) names a material by its key alone
-                _fail(f"phase.{p.name}.material", m.key,
-                      f"one material per key: {where} has another material of key {m.key!r} (rename one)")
+            if other != m:  # a scene file (and every output's /scene) names a material by its key alone
+                _fail(
+                    f"phase.{p.name}.material",
+                    m.key,
+                    f"one material per key: {where} has another material of key {m.key!r} (rename one)",
+                )
         if self.shape not in SHAPES:
             _fail("shape", self.shape, " | ".join(SHAPES))
         if self.transfer not in TRANSFERS:
@@ -295,7 +323,11 @@ class Scene:
             object.__setattr__(self, "damping", c)
         if not isinstance(self.body_force, bool):
             _fail("effects.body_force", self.body_force, "true | false")
-        for name, unit, positive in (("drag", "", False), ("drag_length", "m", True), ("linear_drag", "kg/(m^3 s)", False)):
+        for name, unit, positive in (
+            ("drag", "", False),
+            ("drag_length", "m", True),
+            ("linear_drag", "kg/(m^3 s)", False),
+        ):
             val = getattr(self, name)
             if val is not None:
                 val = _float(f"effects.{name}", val)
@@ -318,8 +350,11 @@ class Scene:
                 m = self.material(p)
                 # (linear_fluid recomputes its stress from F each step, so a q added to it does not accumulate)
                 if not (model_of(m.model).hydro or is_fluid(m.model)):
-                    _fail("effects.artificial_viscosity", list(av),
-                          f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}")
+                    _fail(
+                        "effects.artificial_viscosity",
+                        list(av),
+                        f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}",
+                    )
         if not isinstance(self.axisymmetric, bool):
             _fail("axisymmetric", self.axisymmetric, "true | false")
         if self.axisymmetric:
@@ -331,8 +366,11 @@ class Scene:
                 _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
         if self.window is not None:
             w = self.window
-            ok = (isinstance(w, (tuple, list)) and len(w) == dim
-                  and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells)))
+            ok = (
+                isinstance(w, (tuple, list))
+                and len(w) == dim
+                and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells))
+            )
             if not ok:
                 _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
             object.__setattr__(self, "window", tuple(int(c) for c in w))
@@ -343,14 +381,20 @@ class Scene:
             except (TypeError, ValueError):
                 ok = False
             if not ok or len(sub) < 2 or not all(0 <= k < self.n_fields for k in sub):
-                _fail("effects.interface_forces", self.interface_forces,
-                      f"true | false | a list of >= 2 velocity fields in 0..{self.n_fields - 1} that share the common pressure")
+                _fail(
+                    "effects.interface_forces",
+                    self.interface_forces,
+                    f"true | false | a list of >= 2 velocity fields in 0..{self.n_fields - 1} that share the common pressure",
+                )
             object.__setattr__(self, "interface_forces", True if len(sub) == self.n_fields else sub)
         if self.continuity not in CONTINUITY:
             _fail("effects.continuity", self.continuity, " | ".join(repr(c) for c in CONTINUITY))
         if self.continuity == "transport" and not self._continuity_possible:
-            _fail("effects.continuity", self.continuity,
-                  "'auto' | 'off' unless the scene has >= 2 velocity fields with interface forces and transfer = 'musl'")
+            _fail(
+                "effects.continuity",
+                self.continuity,
+                "'auto' | 'off' unless the scene has >= 2 velocity fields with interface forces and transfer = 'musl'",
+            )
         if self.fragmentation not in FRAGMENTATION:
             _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
         if self.c_h is not None and self.transfer == "apic":
@@ -361,13 +405,16 @@ class Scene:
             _fail("boundary", self.boundary, "a Boundary")
         for face, kind in self.boundary.faces:
             if AXES.index(face.split("_")[0]) >= dim:
-                _fail(f"boundary.{face}", kind, f"faces of the {dim}D grid's axes {FACE_NAMES[:2 * dim]}")
+                _fail(f"boundary.{face}", kind, f"faces of the {dim}D grid's axes {FACE_NAMES[: 2 * dim]}")
         for k in range(dim):
             sides = sum(self.boundary.kind(k, side) != "free" for side in ("lo", "hi"))
             if sides * self.boundary.layers > self.grid.cells[k]:
-                _fail("boundary.layers", self.boundary.layers,
-                      f"at most {self.grid.cells[k] // sides} on axis {AXES[k]} ({self.grid.cells[k]} cells, walls on {sides} "
-                      "side(s)): more would constrain every node of the axis")
+                _fail(
+                    "boundary.layers",
+                    self.boundary.layers,
+                    f"at most {self.grid.cells[k] // sides} on axis {AXES[k]} ({self.grid.cells[k]} cells, walls on {sides} "
+                    "side(s)): more would constrain every node of the axis",
+                )
         cfl = _float("cfl", self.cfl)
         if not 0 < cfl <= 1:
             _fail("cfl", cfl, "(0, 1]")
@@ -381,17 +428,28 @@ class Scene:
         if not isinstance(self.drag_heating, bool):
             _fail("effects.drag_heating", self.drag_heating, "true | false")
         if self.drag_heating and not self.has_exchange:
-            _fail("effects.drag_heating", self.drag_heating, "false unless the scene has an exchange (effects.drag or "
-                  "effects.linear_drag, and phases in two or more velocity fields)")
+            _fail(
+                "effects.drag_heating",
+                self.drag_heating,
+                "false unless the scene has an exchange (effects.drag or "
+                "effects.linear_drag, and phases in two or more velocity fields)",
+            )
         if self.drag_heating and self.transfer != "musl":
-            _fail("effects.drag_heating", self.drag_heating, "false unless transfer = 'musl' (the heat is the drag's "
-                  "work at the remap of the step's own positions)")
+            _fail(
+                "effects.drag_heating",
+                self.drag_heating,
+                "false unless transfer = 'musl' (the heat is the drag's work at the remap of the step's own positions)",
+            )
         if self.window is not None and self.shape != "ddmp" and not self.has_interface_forces and not self.has_exchange:
-            _fail("window", list(self.window), "None unless the scene has DDMP operators (shape 'ddmp', or interface "
-                  "forces between velocity fields) or an exchange between fields")
+            _fail(
+                "window",
+                list(self.window),
+                "None unless the scene has DDMP operators (shape 'ddmp', or interface "
+                "forces between velocity fields) or an exchange between fields",
+            )
         from jaxmpm.state import check_sampling
 
-        check_sampling(self)   # every phase has particles, all inside the grid's usable region
+        check_sampling(self)  # every phase has particles, all inside the grid's usable region
 
     # ------------------------------------------------------------------ derived static facts
     @property

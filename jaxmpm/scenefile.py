@@ -36,6 +36,7 @@ line, for malformed TOML).
 A geometry is { type = "box", lo, hi }, { type = "sphere", center, radius } or
 { type = "difference", base = <box or sphere>, minus = [<geometries>] } (the base outside the others).
 """
+
 from __future__ import annotations
 
 import inspect
@@ -52,11 +53,38 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-TOP_KEYS = ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "window", "grid", "boundary", "effects",
-            "output", "materials", "phase")
+TOP_KEYS = (
+    "name",
+    "description",
+    "shape",
+    "transfer",
+    "cfl",
+    "t_end",
+    "axisymmetric",
+    "window",
+    "grid",
+    "boundary",
+    "effects",
+    "output",
+    "materials",
+    "phase",
+)
 GRID_KEYS = ("cells", "h", "origin")
-EFFECT_KEYS = ("gravity", "gravity_ramp", "damping", "body_force", "drag", "drag_length", "linear_drag", "drag_heating", "interface_forces", "continuity", "c_h", "fragmentation",
-               "artificial_viscosity")
+EFFECT_KEYS = (
+    "gravity",
+    "gravity_ramp",
+    "damping",
+    "body_force",
+    "drag",
+    "drag_length",
+    "linear_drag",
+    "drag_heating",
+    "interface_forces",
+    "continuity",
+    "c_h",
+    "fragmentation",
+    "artificial_viscosity",
+)
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
 
@@ -66,8 +94,11 @@ def _check_keys(d: Any, allowed, where: str) -> dict:
         raise ValueError(f"{where} = {d!r} is invalid: allowed a table with keys {list(allowed)}")
     for k in d:
         if k not in allowed:
-            raise ValueError(f"{where}.{k} is an unknown key: allowed keys are {list(allowed)}" if where
-                             else f"{k} is an unknown key: allowed top-level keys are {list(allowed)}")
+            raise ValueError(
+                f"{where}.{k} is an unknown key: allowed keys are {list(allowed)}"
+                if where
+                else f"{k} is an unknown key: allowed top-level keys are {list(allowed)}"
+            )
     return dict(d)
 
 
@@ -92,7 +123,9 @@ def scene_from_dict(d: Mapping) -> Scene:
         cells = tuple(cells)
     grid = Grid(cells=cells, h=g["h"], origin=g.get("origin"))
 
-    b = _check_keys(d.get("boundary", {}), ("layers",) + tuple(f"{a}_{s}" for a in "xyz" for s in ("lo", "hi")), "boundary")
+    b = _check_keys(
+        d.get("boundary", {}), ("layers",) + tuple(f"{a}_{s}" for a in "xyz" for s in ("lo", "hi")), "boundary"
+    )
     layers = b.pop("layers", 1)
     boundary = Boundary(faces=tuple((k, v) for k, v in b.items()), layers=layers)
 
@@ -111,12 +144,16 @@ def scene_from_dict(d: Mapping) -> Scene:
             lib = _typed(spec.pop("library"), (str,), f"materials.{key}.library", "a library material key")
             if lib not in known_keys():
                 raise ValueError(f"materials.{key}.library = {lib!r} is invalid: allowed one of {list(known_keys())}")
-            model = _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name") if "model" in spec else None
+            model = (
+                _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name") if "model" in spec else None
+            )
             mats.append(library_material(lib, model, key, **spec))
             continue
         if "model" not in spec:
-            raise ValueError(f"materials.{key}.model is missing: allowed {model_names()} "
-                             f"(or library = '<key>' with one of {list(known_keys())})")
+            raise ValueError(
+                f"materials.{key}.model is missing: allowed {model_names()} "
+                f"(or library = '<key>' with one of {list(known_keys())})"
+            )
         model = _typed(spec.pop("model"), (str,), f"materials.{key}.model", "a model name")
         mats.append(Material.make(key, model, **spec))
 
@@ -134,18 +171,28 @@ def scene_from_dict(d: Mapping) -> Scene:
                 raise ValueError(f"{where}.{k} is missing: a phase needs name, material and geometry")
         name = _typed(p["name"], (str,), f"{where}.name", "a string")
         where = f"phase.{name}"
-        plist.append(Phase(
-            name=name,
-            material=_typed(p["material"], (str,), f"{where}.material", "a material key (string)"),
-            geometry=geometry_from_dict(p["geometry"], f"{where}.geometry"),
-            velocity=tuple(p["velocity"]) if isinstance(p.get("velocity"), list) else p.get("velocity"),
-            field=p.get("field", 0), ppc=p.get("ppc", 2), fraction=p.get("fraction", 1.0)))
+        plist.append(
+            Phase(
+                name=name,
+                material=_typed(p["material"], (str,), f"{where}.material", "a material key (string)"),
+                geometry=geometry_from_dict(p["geometry"], f"{where}.geometry"),
+                velocity=tuple(p["velocity"]) if isinstance(p.get("velocity"), list) else p.get("velocity"),
+                field=p.get("field", 0),
+                ppc=p.get("ppc", 2),
+                fraction=p.get("fraction", 1.0),
+            )
+        )
 
     kw = {}
-    for k, types, allowed in (("name", (str,), "a string"), ("description", (str,), "a string"),
-                              ("shape", (str,), "ddmp | linear | bspline2"), ("transfer", (str,), "musl | seed | seed_halfstep | apic"),
-                              ("cfl", (int, float), "a number in (0, 1]"), ("t_end", (int, float), "a number > 0 s"),
-                              ("axisymmetric", (bool,), "true | false")):
+    for k, types, allowed in (
+        ("name", (str,), "a string"),
+        ("description", (str,), "a string"),
+        ("shape", (str,), "ddmp | linear | bspline2"),
+        ("transfer", (str,), "musl | seed | seed_halfstep | apic"),
+        ("cfl", (int, float), "a number in (0, 1]"),
+        ("t_end", (int, float), "a number > 0 s"),
+        ("axisymmetric", (bool,), "true | false"),
+    ):
         if k in d:
             kw[k] = _typed(d[k], types, k, allowed)
     if "window" in d:
@@ -161,7 +208,9 @@ def scene_from_dict(d: Mapping) -> Scene:
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
-        kw["fragmentation"] = _typed(e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic' | 'tensile'")
+        kw["fragmentation"] = _typed(
+            e["fragmentation"], (str,), "effects.fragmentation", "'failed' | 'plastic' | 'tensile'"
+        )
     if "continuity" in e:
         kw["continuity"] = _typed(e["continuity"], (str,), "effects.continuity", "'auto' | 'off' | 'transport'")
     if "body_force" in e:
@@ -169,8 +218,9 @@ def scene_from_dict(d: Mapping) -> Scene:
     if "drag_heating" in e:
         kw["drag_heating"] = _typed(e["drag_heating"], (bool,), "effects.drag_heating", "true | false")
     if "interface_forces" in e:
-        f = _typed(e["interface_forces"], (bool, list), "effects.interface_forces",
-                   "true | false | a list of velocity fields")
+        f = _typed(
+            e["interface_forces"], (bool, list), "effects.interface_forces", "true | false | a list of velocity fields"
+        )
         kw["interface_forces"] = tuple(f) if isinstance(f, list) else f
     if "n_out" in o:
         kw["n_out"] = o["n_out"]
@@ -179,8 +229,15 @@ def scene_from_dict(d: Mapping) -> Scene:
 
 def scene_to_dict(scene: Scene) -> dict:
     """The dict form of a scene file (inverse of scene_from_dict)."""
-    d = {"name": scene.name, "description": scene.description, "shape": scene.shape, "transfer": scene.transfer,
-         "cfl": scene.cfl, "t_end": scene.t_end, "grid": scene.grid.to_dict()}
+    d = {
+        "name": scene.name,
+        "description": scene.description,
+        "shape": scene.shape,
+        "transfer": scene.transfer,
+        "cfl": scene.cfl,
+        "t_end": scene.t_end,
+        "grid": scene.grid.to_dict(),
+    }
     if scene.axisymmetric:
         d["axisymmetric"] = True
     if scene.window is not None:
@@ -214,7 +271,7 @@ def scene_to_dict(scene: Scene) -> dict:
     d["output"] = {"n_out": scene.n_out}
     used = {p.material.key if isinstance(p.material, Material) else p.material for p in scene.phases}
     mats = {m.key: m.to_dict() for m in scene.materials}
-    for p in scene.phases:   # inline Material objects become scene materials
+    for p in scene.phases:  # inline Material objects become scene materials
         if isinstance(p.material, Material) and p.material.key not in mats:
             mats[p.material.key] = p.material.to_dict()
     d["materials"] = {k: v for k, v in mats.items() if k in used}
@@ -241,8 +298,11 @@ def scene_to_toml(scene: Scene) -> str:
     holds a Material object comes back naming it by key, with the Material among the scene's
     materials: an equivalent Scene, not an equal one)."""
     d = scene_to_dict(scene)
-    lines = [f"{k} = {_toml_value(d[k])}" for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric",
-                                                     "window") if k in d]
+    lines = [
+        f"{k} = {_toml_value(d[k])}"
+        for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "window")
+        if k in d
+    ]
     for table in ("grid", "boundary", "effects", "output"):
         lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in d[table].items()]
     for key, spec in d["materials"].items():
@@ -277,13 +337,22 @@ def set_dotted(d: dict, key: str, value: Any) -> None:
             name = parts[i + 1]
             match = [ph for ph in node["phase"] if ph.get("name") == name]
             if not match:
-                raise ValueError(f"--set {key}: no phase named {name!r} (phases: {[ph.get('name') for ph in node['phase']]})")
+                raise ValueError(
+                    f"--set {key}: no phase named {name!r} (phases: {[ph.get('name') for ph in node['phase']]})"
+                )
             node = match[0]
             i += 2
             continue
-        if p == "materials" and i == 0 and parts[1] not in node.get("materials", {}) and parts[-1] not in ("model", "library"):
-            raise ValueError(f"--set {key}: no material named {parts[1]!r} (materials: {sorted(node.get('materials', {}))}; "
-                             "a new one needs its model or library first)")
+        if (
+            p == "materials"
+            and i == 0
+            and parts[1] not in node.get("materials", {})
+            and parts[-1] not in ("model", "library")
+        ):
+            raise ValueError(
+                f"--set {key}: no material named {parts[1]!r} (materials: {sorted(node.get('materials', {}))}; "
+                "a new one needs its model or library first)"
+            )
         if p not in node:
             node[p] = {}
         if not isinstance(node[p], dict):
@@ -334,10 +403,11 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
             with open(path, encoding="utf-8") as f:
                 text = f.read()
         except UnicodeDecodeError as e:
-            raise ValueError(f"scene file {path!r} is not a TOML scene file: it is not UTF-8 text "
-                             f"(byte {e.start}: {e.reason})") from None
+            raise ValueError(
+                f"scene file {path!r} is not a TOML scene file: it is not UTF-8 text (byte {e.start}: {e.reason})"
+            ) from None
         d = parse_toml(text, path)
-        source = f"{path}: "            # errors in the file's contents name it
+        source = f"{path}: "  # errors in the file's contents name it
     elif path in BUILTINS:
         scene = BUILTINS[path].build(**_builder_options(path, BUILTINS[path].build, options))
         if not overrides:
@@ -345,10 +415,14 @@ def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **op
         d = scene_to_dict(scene)
         source = ""
     else:
-        raise ValueError(f"scene {path!r} is neither a built-in scene nor a .toml file: built-ins are {sorted(BUILTINS)}")
+        raise ValueError(
+            f"scene {path!r} is neither a built-in scene nor a .toml file: built-ins are {sorted(BUILTINS)}"
+        )
     if overrides is not None and not isinstance(overrides, Mapping):
-        raise ValueError(f"overrides = {overrides!r} is invalid: allowed a mapping {{'dotted.key': value}}, "
-                         "e.g. {'grid.cells': [32, 32]}")
+        raise ValueError(
+            f"overrides = {overrides!r} is invalid: allowed a mapping {{'dotted.key': value}}, "
+            "e.g. {'grid.cells': [32, 32]}"
+        )
     for k, v in (overrides or {}).items():
         set_dotted(d, k, v)
     try:

@@ -7,6 +7,7 @@ The DDMP blend beta (PHYSICS 2.2, the bubble beta = prod_d 4 xi_d (1 - xi_d)) is
 
 Shapes: x (N, d) m; node (N, S) flat node index; w (N, S); dw (N, S, d) 1/m; S = width^d.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,17 +21,17 @@ from jaxmpm.state import stencil_offsets
 
 @dataclass(frozen=True)
 class Stencil:
-    node: jax.Array   # (N, S) int32 flat node index
-    w: jax.Array      # (N, S) weight S_n(x_p)
-    dw: jax.Array     # (N, S, d) gradient grad S_n(x_p), 1/m
-    cell: jax.Array   # (N,) int32 flat index of the cell holding the particle
-    xi: jax.Array     # (N, d) position inside that cell (linear) or past the stencil base (bspline2), in cells
-    dpos: jax.Array   # (N, S, d) x_n - x_p, m
+    node: jax.Array  # (N, S) int32 flat node index
+    w: jax.Array  # (N, S) weight S_n(x_p)
+    dw: jax.Array  # (N, S, d) gradient grad S_n(x_p), 1/m
+    cell: jax.Array  # (N,) int32 flat index of the cell holding the particle
+    xi: jax.Array  # (N, d) position inside that cell (linear) or past the stencil base (bspline2), in cells
+    dpos: jax.Array  # (N, S, d) x_n - x_p, m
 
 
 def node_strides(nodes):
     """(d,) int32 flat-index strides of an array of shape `nodes` (C order)."""
-    return np.array([int(np.prod(nodes[k + 1:])) for k in range(len(nodes))], dtype=np.int32)
+    return np.array([int(np.prod(nodes[k + 1 :])) for k in range(len(nodes))], dtype=np.int32)
 
 
 @jax.custom_jvp
@@ -78,16 +79,21 @@ def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     xi = (x - jnp.asarray(grid.origin, x.dtype)) / h
     base = jnp.clip(jnp.floor(xi - base_shift).astype(jnp.int32), lo_clip, np.asarray(grid.cells) - hi_clip)
     fx = xi - base
-    off = stencil_offsets(d, width)           # (S, d)
+    off = stencil_offsets(d, width)  # (S, d)
     n = x.shape[0]
-    w1, dw1 = w1d(fx), dw1d(fx) / h          # (N, width, d)
+    w1, dw1 = w1d(fx), dw1d(fx) / h  # (N, width, d)
     # the tensor products by broadcasting, axis k of the (N, width, ..., width) block varying with
     # node offset k (C order, as stencil_offsets): their tangents transpose to sums over the other
     # axes, where indexing the 1D weights by the stencil's offsets transposed to scatter-adds
     wk = [_along_axis(w1[:, :, k], k, d) for k in range(d)]
     w = _product_of_list(wk).reshape(n, -1)
-    dw = jnp.stack([_product_of_list([_along_axis(dw1[:, :, k], k, d) if e == k else wk[e] for e in range(d)])
-                    .reshape(n, -1) for k in range(d)], -1)
+    dw = jnp.stack(
+        [
+            _product_of_list([_along_axis(dw1[:, :, k], k, d) if e == k else wk[e] for e in range(d)]).reshape(n, -1)
+            for k in range(d)
+        ],
+        -1,
+    )
     strides = jnp.asarray(node_strides(grid.nodes))
     node = jnp.sum((base[:, None, :] + jnp.asarray(off)[None]) * strides, -1)
     cell_strides = jnp.asarray(node_strides(grid.cells))

@@ -10,6 +10,7 @@ Two drivers share one step:
     long runs by recomputing steps in the backward pass (jax.checkpoint): "steps" keeps every
     step's input state, "nested" (or True) only about 2 sqrt(n) of them for one more forward pass.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -27,9 +28,18 @@ import numpy as np
 
 from jaxmpm.compile import jit
 from jaxmpm.params import check_params
+
 # the run's arguments and step plan (jaxmpm.planning), importable from here as before
-from jaxmpm.planning import (_planned_steps, cfl_limit as cfl_limit, check_dt, check_memory, check_t_end,
-                             count as count, plan_steps as plan_steps, seconds)
+from jaxmpm.planning import (
+    _planned_steps,
+    cfl_limit as cfl_limit,
+    check_dt,
+    check_memory,
+    check_t_end,
+    count as count,
+    plan_steps as plan_steps,
+    seconds,
+)
 from jaxmpm.planning import RunPlan, acceleration_bound, compile_seconds, flight_warnings
 from jaxmpm.state import State, check_state, check_state_dtypes, phase_slices
 from jaxmpm.tangents import evolving_tangents
@@ -52,6 +62,7 @@ def _chunk_fn(scene, length, mesh=None):
     def run(params, state, t_stop, dt):
         def body(s, _):
             return step(params, s, t_stop, dt), None
+
         return jax.lax.scan(body, state, None, length=length)[0]
 
     return run
@@ -73,11 +84,18 @@ def _checked_chunk_fn(scene, length):
     def run(params, state, t_stop, dt):
         def body(s, i):
             new = step(params, s, t_stop, dt)
-            finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(new, n))) for n in ("x", "v", "stress", "volume", "energy")]))
+            finite = jnp.all(
+                jnp.stack([jnp.all(jnp.isfinite(getattr(new, n))) for n in ("x", "v", "stress", "volume", "energy")])
+            )
             checkify.check(finite, "step {i} of the chunk (t = {t} s): a particle field is not finite", i=i, t=new.t)
-            checkify.check(jnp.all((new.x >= lo) & (new.x <= hi)),
-                           "step {i} of the chunk (t = {t} s): a particle left the grid", i=i, t=new.t)
+            checkify.check(
+                jnp.all((new.x >= lo) & (new.x <= hi)),
+                "step {i} of the chunk (t = {t} s): a particle left the grid",
+                i=i,
+                t=new.t,
+            )
             return new, None
+
         return jax.lax.scan(body, state, jnp.arange(length))[0]
 
     return jit(checkify.checkify(run, errors=checkify.user_checks | checkify.nan_checks))
@@ -115,11 +133,12 @@ def _step_of(scene, mesh):
     if mesh is None:
         return make_step(scene)
     from jaxmpm.distributed import make_sharded_step
+
     return make_sharded_step(scene, mesh)
 
 
 CHECKPOINT_MODES = (False, "steps", "nested")
-AUTO_STEPS_BYTES = 2**30     # "auto": "steps" while the stored input states take at most this much
+AUTO_STEPS_BYTES = 2**30  # "auto": "steps" while the stored input states take at most this much
 
 
 def state_bytes(state) -> int:
@@ -142,21 +161,23 @@ def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
         return "steps" if copies * int(n_steps) * state_bytes(state) <= AUTO_STEPS_BYTES else "nested"
     if isinstance(checkpoint, str) and checkpoint in CHECKPOINT_MODES:
         return checkpoint
-    raise ValueError(f"checkpoint = {checkpoint!r} is invalid: allowed False, True (= 'nested'), 'steps', 'nested' or 'auto'")
+    raise ValueError(
+        f"checkpoint = {checkpoint!r} is invalid: allowed False, True (= 'nested'), 'steps', 'nested' or 'auto'"
+    )
 
 
 # The progress bar of the fixed-length run in flight (`_fixed_fn` with report=True), fed by
 # jax.debug.callback from inside the compiled scan: steps done, counted on the host.
 _PROGRESS = {"bar": None}
-REPORTS = 100           # progress updates per fixed-length run, at most
+REPORTS = 100  # progress updates per fixed-length run, at most
 
 
 def _report_steps(done):
     bar = _PROGRESS["bar"]
-    done = int(np.max(np.asarray(done)))        # the same count from every member or device
+    done = int(np.max(np.asarray(done)))  # the same count from every member or device
     if bar is None:
         return
-    if not _PROGRESS.get("running"):            # the first report: compiling is over, the clock starts
+    if not _PROGRESS.get("running"):  # the first report: compiling is over, the clock starts
         bar.reset(total=bar.total)
         bar.set_postfix_str("running")
         _PROGRESS["running"] = True
@@ -215,7 +236,10 @@ def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
 
                 s = jax.lax.scan(body, s, jnp.arange(n_per_out))[0]
             return s, s
-        return jax.lax.scan(inner, evolving_tangents(dt is not None, state, (params, times, dt)), (times, jnp.arange(n_out)))
+
+        return jax.lax.scan(
+            inner, evolving_tangents(dt is not None, state, (params, times, dt)), (times, jnp.arange(n_out))
+        )
 
     return run
 
@@ -230,7 +254,9 @@ def _health_fn(scene):
 
     @jit
     def health(params, state):
-        ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in ("x", "v", "stress", "volume", "energy")]))
+        ok = jnp.all(
+            jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in ("x", "v", "stress", "volume", "energy")])
+        )
         inside = jnp.all((state.x >= lo) & (state.x <= hi))
         return ok & inside, cfl_time_step(scene, params, state)
 
@@ -257,8 +283,10 @@ def find_nonfinite(scene, state):
     out = np.any((x < lo) | (x > hi), axis=1)
     if out.any():
         i = int(np.argmax(out))
-        return (f"particle {i} of phase {_phase_of(scene, i)!r} is outside the grid at t = {float(state.t):.6g} s: "
-                f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)")
+        return (
+            f"particle {i} of phase {_phase_of(scene, i)!r} is outside the grid at t = {float(state.t):.6g} s: "
+            f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)"
+        )
     return None
 
 
@@ -274,6 +302,7 @@ def first_failure(scene, params, state, stop, dt, length, mesh=None):
             here = state
             if mesh is not None:
                 from jaxmpm.distributed import from_shards, mesh_size
+
                 here = from_shards(scene, state, mesh_size(mesh))
             return i + 1, find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
     return None
@@ -287,9 +316,29 @@ def _failure_text(found, n_chunk, length, end_message=None) -> str:
     return f"{found[1]} (step {found[0]} of chunk {n_chunk}, chunks of {length} steps)"
 
 
-def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=None,
-             progress=True, checkpoint="auto", chunk=None, restart_file=None, restart_every=10, debug=False,
-             mesh=None, overwrite=False, allow_short=False, yes=False, max_minutes=None, announce=None, _report=None):
+def simulate(
+    scene,
+    params,
+    state,
+    t_end=None,
+    n_out=None,
+    *,
+    dt=None,
+    n_steps=None,
+    progress=True,
+    checkpoint="auto",
+    chunk=None,
+    restart_file=None,
+    restart_every=10,
+    debug=False,
+    mesh=None,
+    overwrite=False,
+    allow_short=False,
+    yes=False,
+    max_minutes=None,
+    announce=None,
+    _report=None,
+):
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
@@ -348,39 +397,66 @@ def simulate(scene, params, state, t_end=None, n_out=None, *, dt=None, n_steps=N
     plan = None
     if not traced and n_steps is None:
         import warnings
+
         for line in flight_warnings(scene, state, t_end):
             warnings.warn(f"{scene.name}: {line}", UserWarning, stacklevel=2)
-        plan = RunPlan(scene, params, state, t_end, n_out, None if dt is None else seconds("dt", dt), max_minutes, yes,
-                       announce)
+        plan = RunPlan(
+            scene, params, state, t_end, n_out, None if dt is None else seconds("dt", dt), max_minutes, yes, announce
+        )
         plan.check_memory()
         if announce is not None:
             announce(plan.text())
     if (traced or n_steps is not None) and debug:
-        raise ValueError("debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
-                         "nothing): allowed debug=False there, or no n_steps outside them")
+        raise ValueError(
+            "debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
+            "nothing): allowed debug=False there, or no n_steps outside them"
+        )
     if restart_file is not None and not isinstance(restart_file, (str, os.PathLike)):
         raise ValueError(f"restart_file = {restart_file!r} is invalid: allowed a path (str or pathlib.Path) or None")
     if restart_file is not None:
         if traced or n_steps is not None:
-            raise ValueError("restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "
-                             "saves nothing): allowed restart_file=None there, or no n_steps outside them")
+            raise ValueError(
+                "restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "
+                "saves nothing): allowed restart_file=None there, or no n_steps outside them"
+            )
         from jaxmpm.files import check_new
+
         check_new(restart_file, overwrite=overwrite)
     shards = 1
     if mesh is not None:
         from jaxmpm import distributed
+
         if restart_file is not None or debug:
             raise ValueError("mesh is invalid with restart_file or debug: allowed mesh=None for those runs")
         shards = distributed.mesh_size(mesh)
         state = distributed.to_shards(scene, state, mesh)
     t0 = None if traced else float(state.t)
-    final, history = _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk,
-                          restart_file, restart_every, debug, traced, mesh, _report, plan)
+    final, history = _run(
+        scene,
+        params,
+        state,
+        t_end,
+        n_out,
+        dt,
+        n_steps,
+        progress,
+        checkpoint,
+        chunk,
+        restart_file,
+        restart_every,
+        debug,
+        traced,
+        mesh,
+        _report,
+        plan,
+    )
     if n_steps is not None and not traced and not allow_short:
         _check_reached(scene, final.t, t0, t_end, n_steps)
     if mesh is None:
         return final, history
-    return distributed.from_shards(scene, final, shards), distributed.from_shards(scene, history, shards, time_axis=True)
+    return distributed.from_shards(scene, final, shards), distributed.from_shards(
+        scene, history, shards, time_axis=True
+    )
 
 
 def _check_reached(scene, t, t0, t_end, n_steps):
@@ -388,21 +464,42 @@ def _check_reached(scene, t, t0, t_end, n_steps):
     (t_end - t0) / n_steps: its n_steps were too few (or its CFL step shrank during the run)."""
     reached = float(np.max(np.asarray(t)))
     if reached < t_end - 0.5 * (t_end - t0) / n_steps:
-        raise RuntimeError(f"{scene.name}: the run reached only t = {reached:.6g} s of t_end = {t_end:g} s in "
-                           f"n_steps = {n_steps}: pass a larger n_steps (jaxmpm.plan_steps(scene, params, state, t_end) "
-                           "plans them), or allow_short=True and check final.t")
+        raise RuntimeError(
+            f"{scene.name}: the run reached only t = {reached:.6g} s of t_end = {t_end:g} s in "
+            f"n_steps = {n_steps}: pass a larger n_steps (jaxmpm.plan_steps(scene, params, state, t_end) "
+            "plans them), or allow_short=True and check final.t"
+        )
 
 
-def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, chunk, restart_file, restart_every,
-         debug, traced, mesh, report=None, plan=None):
+def _run(
+    scene,
+    params,
+    state,
+    t_end,
+    n_out,
+    dt,
+    n_steps,
+    progress,
+    checkpoint,
+    chunk,
+    restart_file,
+    restart_every,
+    debug,
+    traced,
+    mesh,
+    report=None,
+    plan=None,
+):
     """report: whether the fixed-length driver tells a progress bar its steps (None: where progress
     is on outside jit/grad/vmap; `ensemble` sets it for its vmapped members and draws the bar)."""
     dtype = state.t.dtype
     dt_arr = None if dt is None else jnp.asarray(dt, dtype)
     if traced or n_steps is not None:
         if n_steps is None:
-            raise ValueError("n_steps is required inside jit/grad/vmap: compute it outside with "
-                             "jaxmpm.plan_steps(scene, params, state, t_end) and pass n_steps=...")
+            raise ValueError(
+                "n_steps is required inside jit/grad/vmap: compute it outside with "
+                "jaxmpm.plan_steps(scene, params, state, t_end) and pass n_steps=..."
+            )
         n_per_out = max(1, math.ceil(int(n_steps) / n_out))
         t0 = state.t
         times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
@@ -415,8 +512,21 @@ def _run(scene, params, state, t_end, n_out, dt, n_steps, progress, checkpoint, 
         return final, history
     if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
         raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
-    return _host_driver(scene, params, state, t_end, n_out, dt_arr, progress, chunk,
-                        restart_file=restart_file, restart_every=restart_every, debug=debug, mesh=mesh, plan=plan)
+    return _host_driver(
+        scene,
+        params,
+        state,
+        t_end,
+        n_out,
+        dt_arr,
+        progress,
+        chunk,
+        restart_file=restart_file,
+        restart_every=restart_every,
+        debug=debug,
+        mesh=mesh,
+        plan=plan,
+    )
 
 
 # A chunk (default length) does at most this many particle-steps (and at least 10 steps): its first
@@ -478,14 +588,35 @@ def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
     takes at least one step: the run would take n_out shorter steps, and save n_out states)."""
     steps = _planned_steps(scene, params, state, t_end, None if dt is None else float(dt), safety=1.0)
     if n_out > steps:
-        warnings.warn(f"{scene.name}: n_out = {n_out} exceeds the about {steps} steps of the run to t_end = {t_end:g} s: "
-                      f"each output takes at least one step, so the run takes {n_out} shorter steps and saves "
-                      f"{n_out + 1} states (allowed without this warning: n_out <= {steps})", RuntimeWarning, stacklevel=5)
+        warnings.warn(
+            f"{scene.name}: n_out = {n_out} exceeds the about {steps} steps of the run to t_end = {t_end:g} s: "
+            f"each output takes at least one step, so the run takes {n_out} shorter steps and saves "
+            f"{n_out + 1} states (allowed without this warning: n_out <= {steps})",
+            RuntimeWarning,
+            stacklevel=5,
+        )
 
 
-def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=None, history=None,
-                 start_out=0, restart_file=None, restart_every=0, debug=False, mesh=None, plan=None,
-                 restart_saved=False):
+def _host_driver(
+    scene,
+    params,
+    state,
+    t_end,
+    n_out,
+    dt,
+    progress,
+    chunk,
+    *,
+    t0=None,
+    history=None,
+    start_out=0,
+    restart_file=None,
+    restart_every=0,
+    debug=False,
+    mesh=None,
+    plan=None,
+    restart_saved=False,
+):
     """The adaptive host-driven run: jitted chunks until each output time (see the module
     docstring). plan: a `RunPlan` told the first chunk's run time (compilation excluded), which may
     refuse the run before anything is saved. restart_saved: `restart_file` already holds this run's
@@ -505,14 +636,22 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
             err, new = checked(params, state, stop, dt)
             if err.get() is not None:
                 found = first_failure(scene, params, state, stop, dt, chunk, mesh)
-                raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks + 1, chunk)}"
-                                         f"; checkify: {err.get()}")
+                raise FloatingPointError(
+                    f"{scene.name}: {_failure_text(found, n_chunks + 1, chunk)}; checkify: {err.get()}"
+                )
             return new
+
     health = _health_fn(scene)
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=t_end - t0, unit="s", desc=scene.name, bar_format="{l_bar}{bar}| t={n:.3g}/{total:.3g} s [{elapsed}<{remaining}]")
+
+        bar = tqdm(
+            total=t_end - t0,
+            unit="s",
+            desc=scene.name,
+            bar_format="{l_bar}{bar}| t={n:.3g}/{total:.3g} s [{elapsed}<{remaining}]",
+        )
     history = [state] if history is None else list(history)
     n_chunks = 0
     tol = 8 * float(jnp.finfo(state.t.dtype).eps) * max(abs(t_end), t_end - t0)
@@ -522,16 +661,32 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
     def save(next_out):
         if restart_file is not None:
             from jaxmpm import restart
-            restart.save(restart_file, scene, params, state, history, t0=t0, t_end=t_end, n_out=n_out,
-                         next_out=next_out, chunk=chunk, dt=None if dt is None else float(dt), append=saved["any"])
+
+            restart.save(
+                restart_file,
+                scene,
+                params,
+                state,
+                history,
+                t0=t0,
+                t_end=t_end,
+                n_out=n_out,
+                next_out=next_out,
+                chunk=chunk,
+                dt=None if dt is None else float(dt),
+                append=saved["any"],
+            )
             saved["any"] = True
 
     def stop_if_asked(next_out, request):
-        if request.signum is None or next_out == n_out:     # none, or the run is complete: its results
+        if request.signum is None or next_out == n_out:  # none, or the run is complete: its results
             return
         save(next_out)
-        where = (f"its progress is saved in {restart_file} (t = {float(state.t):.6g} s, {next_out} of {n_out} outputs)"
-                 if restart_file is not None else f"at t = {float(state.t):.6g} s, nothing saved (no restart file)")
+        where = (
+            f"its progress is saved in {restart_file} (t = {float(state.t):.6g} s, {next_out} of {n_out} outputs)"
+            if restart_file is not None
+            else f"at t = {float(state.t):.6g} s, nothing saved (no restart file)"
+        )
         raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
     request = _StopRequest()
@@ -553,6 +708,7 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                     here = state
                     if found is None and mesh is not None:
                         from jaxmpm.distributed import from_shards, mesh_size
+
                         here = from_shards(scene, state, mesh_size(mesh))
                     end = None if found is not None else find_nonfinite(scene, here)
                     raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks, chunk, end)}")
@@ -563,12 +719,15 @@ def _host_driver(scene, params, state, t_end, n_out, dt, progress, chunk, *, t0=
                     raise FloatingPointError(
                         f"{scene.name}: the fixed dt = {float(dt):.6g} s exceeds the CFL limit "
                         f"{float(dt_cfl):.6g} s at t = {float(state.t):.6g} s "
-                        f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)")
+                        f"(speeds grew during the run): use a smaller dt or the CFL step (dt=None)"
+                    )
                 if not float(state.t) > t_before:
-                    raise FloatingPointError(f"{scene.name}: time does not advance at t = {t_before:.6g} s "
-                                             f"(dt = 0: a wave speed is non-finite or infinite)")
+                    raise FloatingPointError(
+                        f"{scene.name}: time does not advance at t = {t_before:.6g} s "
+                        f"(dt = 0: a wave speed is non-finite or infinite)"
+                    )
                 if bar is not None:
-                    bar.update(min(float(state.t), t_end) - t0 - bar.n)   # float32 t may pass t_end by round-off
+                    bar.update(min(float(state.t), t_end) - t0 - bar.n)  # float32 t may pass t_end by round-off
                 if restart_every and n_chunks % restart_every == 0:
                     save(i_out)
                 stop_if_asked(i_out, request)

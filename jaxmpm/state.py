@@ -19,6 +19,7 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
                       the total-stress models)
     damage  (N,)      damage in [0, 1]; 1: failed, no tension and no shear
 """
+
 from __future__ import annotations
 
 import functools
@@ -53,8 +54,10 @@ class State:
 
 
 jax.tree_util.register_dataclass(
-    State, data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C", "eps_ps", "pressure", "damage"],
-    meta_fields=[])
+    State,
+    data_fields=["t", "x", "v", "mass", "volume", "F", "stress", "energy", "C", "eps_ps", "pressure", "damage"],
+    meta_fields=[],
+)
 
 
 def lattice_cells(grid, phase) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +104,9 @@ def check_sampling(scene) -> None:
     fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
     from jaxmpm.planning import check_scene_memory
 
-    check_scene_memory(scene, itemsize=4)   # before sampling (grid at float32, the least a run holds): refused, not swapped
+    check_scene_memory(
+        scene, itemsize=4
+    )  # before sampling (grid at float32, the least a run holds): refused, not swapped
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
@@ -114,17 +119,23 @@ def check_sampling(scene) -> None:
                 total = total + q.fraction * inside
                 if (total > 1 + 1e-9).any():
                     i = int(np.argmax(total > 1 + 1e-9))
-                    raise ValueError(f"phase.{p.name}.geometry overlaps phase.{q.name}.geometry in velocity field {p.field} "
-                                     f"(e.g. at {x[i].tolist()} m), where their volume fractions sum to {total[i]:g}: allowed "
-                                     "bodies of one field that do not overlap, or phases of a mixture whose fractions sum to <= 1 "
-                                     "where they share space (bodies of different fields may interpenetrate)")
+                    raise ValueError(
+                        f"phase.{p.name}.geometry overlaps phase.{q.name}.geometry in velocity field {p.field} "
+                        f"(e.g. at {x[i].tolist()} m), where their volume fractions sum to {total[i]:g}: allowed "
+                        "bodies of one field that do not overlap, or phases of a mixture whose fractions sum to <= 1 "
+                        "where they share space (bodies of different fields may interpenetrate)"
+                    )
         if len(x) == 0:
-            raise ValueError(f"phase.{p.name}.geometry = {p.geometry.to_dict()} holds no particle: make it larger than a cell or raise ppc")
+            raise ValueError(
+                f"phase.{p.name}.geometry = {p.geometry.to_dict()} holds no particle: make it larger than a cell or raise ppc"
+            )
         bad = np.any((x < lo) | (x > hi), axis=1)
         if bad.any():
             i = int(np.argmax(bad))
-            raise ValueError(f"phase.{p.name}.geometry: particle {i} at {x[i].tolist()} lies outside the grid's usable "
-                             f"region [{lo.tolist()}, {hi.tolist()}] m (shape {scene.shape!r} needs {margin} cell of margin)")
+            raise ValueError(
+                f"phase.{p.name}.geometry: particle {i} at {x[i].tolist()} lies outside the grid's usable "
+                f"region [{lo.tolist()}, {hi.tolist()}] m (shape {scene.shape!r} needs {margin} cell of margin)"
+            )
 
 
 def init_state(scene, params) -> State:
@@ -145,7 +156,7 @@ def init_state(scene, params) -> State:
         n = len(x)
         vol = np.full(n, p.fraction * (h / p.ppc) ** d)
         if scene.axisymmetric:
-            vol = vol * x[:, 0]              # per radian: V = r dr dz
+            vol = vol * x[:, 0]  # per radian: V = r dr dz
         xs.append(jnp.asarray(x, dtype))
         vs.append(jnp.broadcast_to(jnp.asarray(p.velocity, dtype), (n, d)))
         vols.append(jnp.asarray(vol, dtype))
@@ -158,9 +169,20 @@ def init_state(scene, params) -> State:
     md = scene.material_dim
     eye = jnp.broadcast_to(jnp.eye(md, dtype=dtype), (n, md, md))
     C = jnp.zeros((n, d, d), dtype) if scene.transfer == "apic" else None
-    return State(t=jnp.zeros((), dtype), x=x, v=v, mass=m, volume=vol, F=eye,
-                 stress=-pres[:, None, None] * eye, energy=energy, C=C, eps_ps=jnp.zeros(n, dtype),
-                 pressure=pres, damage=jnp.zeros(n, dtype))
+    return State(
+        t=jnp.zeros((), dtype),
+        x=x,
+        v=v,
+        mass=m,
+        volume=vol,
+        F=eye,
+        stress=-pres[:, None, None] * eye,
+        energy=energy,
+        C=C,
+        eps_ps=jnp.zeros(n, dtype),
+        pressure=pres,
+        damage=jnp.zeros(n, dtype),
+    )
 
 
 def stencil_offsets(dim: int, width: int) -> np.ndarray:
@@ -172,6 +194,7 @@ def check_state_dtypes(state: State) -> None:
     """ValueError naming the first field of `state` whose dtype is not float32 or float64, or not
     the one of state.t (a step keeps each field's dtype: one dtype for all)."""
     allowed = (np.dtype(np.float32), np.dtype(np.float64))
+
     def dtype_of(a):
         return np.dtype(a.dtype if hasattr(a, "dtype") else np.result_type(a))
 
@@ -182,11 +205,15 @@ def check_state_dtypes(state: State) -> None:
             continue
         dt = dtype_of(a)
         if dt not in allowed:
-            raise ValueError(f"state.{name} has dtype {dt}: allowed float32 or float64 (all fields one dtype; "
-                             "jaxmpm.init_state gives the dtype of the params)")
+            raise ValueError(
+                f"state.{name} has dtype {dt}: allowed float32 or float64 (all fields one dtype; "
+                "jaxmpm.init_state gives the dtype of the params)"
+            )
         if dt != t_dtype:
-            raise ValueError(f"state.{name} has dtype {dt} and state.t {t_dtype}: allowed one dtype for all fields "
-                             "(float32 or float64)")
+            raise ValueError(
+                f"state.{name} has dtype {dt} and state.t {t_dtype}: allowed one dtype for all fields "
+                "(float32 or float64)"
+            )
 
 
 def check_state(scene, state: State) -> None:
@@ -201,19 +228,33 @@ def check_state(scene, state: State) -> None:
     def phase_of(i):
         return next(p.name for p, sl in zip(scene.phases, slices) if sl.start <= i < sl.stop)
 
-    shapes = {"x": (n, d), "v": (n, d), "mass": (n,), "volume": (n,), "F": (n, md, md), "stress": (n, md, md),
-              "energy": (n,), "eps_ps": (n,), "pressure": (n,), "damage": (n,)}
+    shapes = {
+        "x": (n, d),
+        "v": (n, d),
+        "mass": (n,),
+        "volume": (n,),
+        "F": (n, md, md),
+        "stress": (n, md, md),
+        "energy": (n,),
+        "eps_ps": (n,),
+        "pressure": (n,),
+        "damage": (n,),
+    }
     if np.shape(state.t) != ():
         raise ValueError(f"state.t has shape {np.shape(state.t)}: allowed a scalar (s)")
     check_state_dtypes(state)
     if scene.transfer == "apic":
         if state.C is None:
-            raise ValueError("state.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, "
-                             f"allowed an array of shape {(n, d, d)} (1/s; zeros at rest, as init_state gives)")
+            raise ValueError(
+                "state.C is None: the scene's transfer 'apic' needs the affine velocity matrix C, "
+                f"allowed an array of shape {(n, d, d)} (1/s; zeros at rest, as init_state gives)"
+            )
         shapes["C"] = (n, d, d)
     elif state.C is not None:
-        raise ValueError(f"state.C is set, but the scene's transfer {scene.transfer!r} has no affine velocity matrix "
-                         "(only 'apic' carries C): allowed None")
+        raise ValueError(
+            f"state.C is set, but the scene's transfer {scene.transfer!r} has no affine velocity matrix "
+            "(only 'apic' carries C): allowed None"
+        )
     for name, shape in shapes.items():
         a = getattr(state, name)
         if a is None:
@@ -224,9 +265,15 @@ def check_state(scene, state: State) -> None:
         bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
-            raise ValueError(f"state.{name} of particle {i} (phase {phase_of(i)!r}) is not finite: allowed finite values")
-    for name, lo, hi, unit in (("mass", 0.0, None, "kg"), ("volume", 0.0, None, "m^3"),
-                               ("damage", 0.0, 1.0, ""), ("eps_ps", 0.0, None, "")):
+            raise ValueError(
+                f"state.{name} of particle {i} (phase {phase_of(i)!r}) is not finite: allowed finite values"
+            )
+    for name, lo, hi, unit in (
+        ("mass", 0.0, None, "kg"),
+        ("volume", 0.0, None, "m^3"),
+        ("damage", 0.0, 1.0, ""),
+        ("eps_ps", 0.0, None, ""),
+    ):
         a = getattr(state, name)
         if a is None:
             continue
@@ -236,13 +283,17 @@ def check_state(scene, state: State) -> None:
         if bad.any():
             i = int(np.argmax(bad))
             rng = f"{'>' if strict else '>='} {lo:g}" + (f" and <= {hi:g}" if hi is not None else "")
-            raise ValueError(f"state.{name} = {float(a[i])!r} of particle {i} (phase {phase_of(i)!r}) is invalid: "
-                             f"allowed {rng}{' ' + unit if unit else ''}")
+            raise ValueError(
+                f"state.{name} = {float(a[i])!r} of particle {i} (phase {phase_of(i)!r}) is invalid: "
+                f"allowed {rng}{' ' + unit if unit else ''}"
+            )
     det = np.linalg.det(np.asarray(state.F, np.float64))
     if not (det > 0).all():
         i = int(np.argmax(~(det > 0)))
-        raise ValueError(f"state.F of particle {i} (phase {phase_of(i)!r}) has det F = {float(det[i]):.6g}: allowed "
-                         "det F > 0 (a deformation gradient keeps volume positive)")
+        raise ValueError(
+            f"state.F of particle {i} (phase {phase_of(i)!r}) has det F = {float(det[i]):.6g}: allowed "
+            "det F > 0 (a deformation gradient keeps volume positive)"
+        )
     margin = 0.5 if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
     hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
@@ -250,5 +301,7 @@ def check_state(scene, state: State) -> None:
     out = np.any((x < lo) | (x > hi), axis=1)
     if out.any():
         i = int(np.argmax(out))
-        raise ValueError(f"state.x of particle {i} (phase {phase_of(i)!r}) = {x[i].tolist()} m lies outside the grid: "
-                         f"allowed [{lo.tolist()}, {hi.tolist()}] m")
+        raise ValueError(
+            f"state.x of particle {i} (phase {phase_of(i)!r}) = {x[i].tolist()} m lies outside the grid: "
+            f"allowed [{lo.tolist()}, {hi.tolist()}] m"
+        )

@@ -9,6 +9,7 @@ name (gravity, damping, body force, DDMP, a wall) is not in the traced program a
 coupling of velocity fields (E3, E6, E7, E13, E15) is in jaxmpm.multifield; the nodal quantities
 the stages share (scatters, stress force parts, DDMP operators) in jaxmpm.nodal.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -19,14 +20,27 @@ import numpy as np
 
 from jaxmpm import ddmp, fields
 from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
-from jaxmpm.multifield import (ambient_pressure_by_phase, exchange_force, interface_force, phase_pressure_and_compressibility,
-                               pressure_moments)
+from jaxmpm.multifield import (
+    ambient_pressure_by_phase,
+    exchange_force,
+    interface_force,
+    phase_pressure_and_compressibility,
+    pressure_moments,
+)
 from jaxmpm.nodal import ddmp_operators, grid_shape, nodal_stress_force, particle_radius, scatter_named, stress_parts
 from jaxmpm.forms import transfer_form
 from jaxmpm.shapes import bspline2_stencil, ddmp_beta, stencil
 from jaxmpm.state import phase_slices
-from jaxmpm.transfer import (gather, gather_by_offset, interpolate, offset_stencil, scatter, scatter_by_window, stencil_apply,
-                             stencil_outer)
+from jaxmpm.transfer import (
+    gather,
+    gather_by_offset,
+    interpolate,
+    offset_stencil,
+    scatter,
+    scatter_by_window,
+    stencil_apply,
+    stencil_outer,
+)
 
 
 @dataclass(frozen=True)
@@ -37,10 +51,10 @@ class Layout:
     dim: int
     n_fields: int
     n_nodes: int
-    field: np.ndarray | None         # (N,) field index per particle, None with one field
-    slices: tuple                    # per phase
-    bc_mask: np.ndarray | None       # (n_nodes, d) 1 where a velocity component is free, None if no walls
-    axis_name: str | None = None     # the mesh axis the particles are split along (jaxmpm.distributed), or None
+    field: np.ndarray | None  # (N,) field index per particle, None with one field
+    slices: tuple  # per phase
+    bc_mask: np.ndarray | None  # (n_nodes, d) 1 where a velocity component is free, None if no walls
+    axis_name: str | None = None  # the mesh axis the particles are split along (jaxmpm.distributed), or None
     phase: np.ndarray | None = None  # (N,) phase index per particle, None with one phase
 
     @property
@@ -66,10 +80,20 @@ class Layout:
         starts = np.concatenate([[0], np.cumsum(local)]).astype(int)
         slices = tuple(slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:]))
         field = np.concatenate([np.full(c, p.field, np.int32) for p, c in zip(scene.phases, local)]) if K > 1 else None
-        phase = (np.concatenate([np.full(c, i, np.int32) for i, c in enumerate(local)])
-                 if len(scene.phases) > 1 else None)
-        return Layout(scene=scene, dim=scene.dim, n_fields=K, n_nodes=scene.grid.n_nodes, field=field,
-                      slices=slices, bc_mask=boundary_mask(scene), axis_name=axis_name, phase=phase)
+        phase = (
+            np.concatenate([np.full(c, i, np.int32) for i, c in enumerate(local)]) if len(scene.phases) > 1 else None
+        )
+        return Layout(
+            scene=scene,
+            dim=scene.dim,
+            n_fields=K,
+            n_nodes=scene.grid.n_nodes,
+            field=field,
+            slices=slices,
+            bc_mask=boundary_mask(scene),
+            axis_name=axis_name,
+            phase=phase,
+        )
 
     def particle_sum(self, x):
         """A sum over particles completed across the devices: x is a scatter's nodal result
@@ -85,8 +109,10 @@ class Layout:
         # pmax has no derivative: the value by pmax, the derivative that of the devices holding it
         top = jax.lax.pmax(jax.lax.stop_gradient(m), self.axis_name)
         here = m == top
-        return top + (jax.lax.psum(jnp.where(here, m - jax.lax.stop_gradient(m), 0.0), self.axis_name)
-                      / jax.lax.psum(here.astype(m.dtype), self.axis_name))
+        return top + (
+            jax.lax.psum(jnp.where(here, m - jax.lax.stop_gradient(m), 0.0), self.axis_name)
+            / jax.lax.psum(here.astype(m.dtype), self.axis_name)
+        )
 
 
 def boundary_mask(scene) -> np.ndarray | None:
@@ -107,7 +133,7 @@ def boundary_mask(scene) -> np.ndarray | None:
                 mask[near, :] = 0.0
             else:
                 mask[near, k] = 0.0
-    if on_axis:                      # axis condition v_r = 0 at r = 0 (PHYSICS 2.3)
+    if on_axis:  # axis condition v_r = 0 at r = 0 (PHYSICS 2.3)
         mask[idx[:, 0] == 0, 0] = 0.0
     return mask
 
@@ -161,8 +187,9 @@ def _cfl_time_step(lay, params, state, cfl=None):
     cfl = params.cfl if cfl is None else cfl
     v2 = jnp.sum(state.v * state.v, axis=-1)
     moving = v2 > 0
-    speed = (bulk_modulus_and_wave_speed(lay, params, state)[1]
-             + jnp.where(moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0))          # finite grad at rest
+    speed = bulk_modulus_and_wave_speed(lay, params, state)[1] + jnp.where(
+        moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0
+    )  # finite grad at rest
     return cfl * lay.scene.grid.h / lay.particle_max(speed)
 
 
@@ -182,8 +209,12 @@ def body_acceleration(lay, params, state):
     if scene.gravity is not None:
         acc = jnp.broadcast_to(gravity_now(params, state.t), state.v.shape)
     if scene.body_force:
-        b = jnp.concatenate([jnp.broadcast_to(params.body_force[p.name], (sl.stop - sl.start, lay.dim))
-                             for p, sl in zip(scene.phases, lay.slices)])
+        b = jnp.concatenate(
+            [
+                jnp.broadcast_to(params.body_force[p.name], (sl.stop - sl.start, lay.dim))
+                for p, sl in zip(scene.phases, lay.slices)
+            ]
+        )
         acc = b if acc is None else acc + b
     return acc
 
@@ -202,7 +233,7 @@ def particle_to_grid(lay, params, st, state, beta):
     if lay.scene.has_interface_forces:
         p, kappa = phase_pressure_and_compressibility(lay, params, state)
         if lay.scene.continuity_form != "transport":
-            parts["pm"] = pressure_moments(lay, st, p, V)                            # (E15)
+            parts["pm"] = pressure_moments(lay, st, p, V)  # (E15)
         parts["kvol"] = w * (V * kappa)[:, None, None]
     return scatter_named(lay, st, parts)
 
@@ -231,8 +262,11 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
             I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
         f = f + I
     if acc_p is not None:
-        f = f + lay.particle_sum(scatter(st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
-                                         lay.n_fields, lay.n_nodes))
+        f = f + lay.particle_sum(
+            scatter(
+                st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :], lay.n_fields, lay.n_nodes
+            )
+        )
     a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
@@ -269,7 +303,7 @@ def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=No
     dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
     Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(grid_shape(lay) + (d,)))
     Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
-    return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)   # (E12)
+    return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)  # (E12)
 
 
 def velocity_gradient(lay, params, st, state, dt, m_min):
@@ -278,10 +312,13 @@ def velocity_gradient(lay, params, st, state, dt, m_min):
     ddmp_on = lay.scene.shape == "ddmp"
     vol_n = None
     if ddmp_on or lay.scene.has_exchange:
-        vol_n = lay.particle_sum(scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields,
-                                         lay.n_nodes))[..., 0]
+        vol_n = lay.particle_sum(
+            scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)
+        )[..., 0]
     v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
-    return particle_velocity_gradient(lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state))
+    return particle_velocity_gradient(
+        lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state)
+    )
 
 
 def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min, raw=False):
@@ -292,7 +329,7 @@ def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min, raw=False):
     w = st.w[..., None]
     g = scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
     v = v_raw = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
-    if lay.scene.has_exchange:                                                           # (E14)
+    if lay.scene.has_exchange:  # (E14)
         F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
         # under lax.cond(dt > 0), like the exchange (at dt = 0 the update adds nothing): XLA keeps
         # the updated v as one array where it fused its masks and divisions into DDMP's velocity
@@ -321,10 +358,10 @@ def seed_update(lay, params, state, dt):
     scene = lay.scene
     d = lay.dim
     m_min = _mass_floor(lay, state)
-    with jax.named_scope(STAGES[0]):                                               # 1
+    with jax.named_scope(STAGES[0]):  # 1
         st = stencil(scene, state.x)
         beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
-    with jax.named_scope(STAGES[1]):                                               # 2
+    with jax.named_scope(STAGES[1]):  # 2
         g = particle_to_grid(lay, params, st, state, beta)
         if lay.n_fields == 1:
             # the nodal parts' cotangent as one array: XLA had fused its computation (about 130
@@ -334,28 +371,31 @@ def seed_update(lay, params, state, dt):
             # moved into the DDMP operators' transposes (benchmarks/NOTES.md, Gradients)
             g = tangent_fenced(g, dt > 0)
         acc_p = body_acceleration(lay, params, state)
-    with jax.named_scope(STAGES[2]):                                               # 3
-        v_n, a_n, dg, p_amb_n, volume_rate, impulses = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
-    with jax.named_scope(STAGES[3]):                                               # 4
+    with jax.named_scope(STAGES[2]):  # 3
+        v_n, a_n, dg, p_amb_n, volume_rate, impulses = grid_acceleration(
+            lay, params, state, st, beta, g, acc_p, dt, m_min
+        )
+    with jax.named_scope(STAGES[3]):  # 4
         p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
         if scene.c_h is not None and lay.n_phases > 1 and not lay.ambient_by_field:
-            p_amb = ambient_pressure_by_phase(lay, params, st, state)                   # (E8)
+            p_amb = ambient_pressure_by_phase(lay, params, st, state)  # (E8)
         if scene.transfer == "musl":
             v = state.v + dt * interpolate(st, lay.field, a_n)
             vol_n = g["vol"][..., 0] if "vol" in g else None
             with jax.named_scope("remap"):
                 v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min, raw=impulses is not None)
             energy = state.energy
-            if impulses is not None:   # the drag's work as heat (drag_heating), by mass: sum_p m_p de_p = sum_n Q_nk
+            if impulses is not None:  # the drag's work as heat (drag_heating), by mass: sum_p m_p de_p = sum_n Q_nk
                 v_r, v_raw = v_r
                 m = g["m"][..., 0]
                 heat = fields.drag_heat(impulses, m, v_raw, m_min)
                 energy = energy + interpolate(st, lay.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
             x = state.x + dt * interpolate(st, lay.field, v_r)
             with jax.named_scope("velocity_gradient"):
-                L = particle_velocity_gradient(lay, st, v_r, vol_n if beta is not None else None, dg,
-                                               radius=particle_radius(lay, state))
-                if scene.continuity_form == "transport":                           # (E7)
+                L = particle_velocity_gradient(
+                    lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state)
+                )
+                if scene.continuity_form == "transport":  # (E7)
                     extra = volume_rate(v_r)
                     L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
             moved = replace(state, x=x, v=v, energy=energy)
@@ -365,7 +405,7 @@ def seed_update(lay, params, state, dt):
             moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
             with jax.named_scope("velocity_gradient"):
                 L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
-    with jax.named_scope(STAGES[4]):                                               # 5
+    with jax.named_scope(STAGES[4]):  # 5
         # L's cotangent as one array: XLA had fused its computation from the constitutive
         # update's transpose into each consumer in the velocity gradient's transpose, repeated per
         # stencil node (that stage's transpose: 8.8 -> 2.0-2.6 forward runs of it, benchmarks/NOTES.md)
@@ -398,20 +438,20 @@ def apic_update(lay, params, state, dt):
         if acc_p is not None:
             mv = mv + dt * m[:, None] * acc_p
         if one_pass:
-            g = lay.particle_sum(_apic_scatter_one_pass(st, m, mv, affine, lay.n_nodes))               # (1, n_nodes, 1 + d)
+            g = lay.particle_sum(_apic_scatter_one_pass(st, m, mv, affine, lay.n_nodes))  # (1, n_nodes, 1 + d)
         else:
             g = lay.particle_sum(_apic_scatter_by_window(st, m, mv, affine))[None]
     with jax.named_scope(STAGES[2]):
         v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
         if scene.damping is not None:
             v_n = v_n * jnp.exp(-params.damping * dt)
-        v_n = _apply_bc(lay, v_n)                                                             # (1, n_nodes, d)
+        v_n = _apply_bc(lay, v_n)  # (1, n_nodes, d)
     with jax.named_scope(STAGES[3]):
         v, B = _apic_gather_one_pass(st, v_n) if one_pass else _apic_gather_by_offset(st, v_n[0].T)
         C = dinv * B
         moved = replace(state, x=state.x + dt * v, v=v, C=C)
     with jax.named_scope(STAGES[4]):
-        new = constitutive(lay, params, moved, C, dt)      # (Scene refuses the closure, E8, with APIC)
+        new = constitutive(lay, params, moved, C, dt)  # (Scene refuses the closure, E8, with APIC)
     return replace(moved, t=state.t + dt, **new)
 
 

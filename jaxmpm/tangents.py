@@ -4,6 +4,7 @@
 state whose fields get their tangents only from a first step makes JAX linearize the scan's body
 twice (benchmarks/NOTES.md, Tracing). `evolving_tangents` gives them before the scan.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -35,14 +36,19 @@ def evolving_tangents(fixed_dt, state, inputs):
 def _evolving_tangents_jvp(fixed_dt, primals, tangents):
     state, _ = primals
     dstate = tangents[0]
-    nonzero = [jnp.asarray(t) for t in jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
-               if not isinstance(t, SymbolicZero)]
+    nonzero = [
+        jnp.asarray(t)
+        for t in jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
+        if not isinstance(t, SymbolicZero)
+    ]
     nonzero = [t for t in nonzero if jnp.issubdtype(t.dtype, jnp.inexact)]
     if not nonzero:
         return state, dstate
     # zero, but a tangent (it depends on the nonzero ones): selected, not multiplied by 0, so
     # that an infinite tangent or cotangent (float32 adjoints can overflow) gives 0, not NaN
-    nil = sum(jax.lax.select(jnp.asarray(False), jnp.sum(t).real, jnp.zeros((), jnp.sum(t).real.dtype)) for t in nonzero)
+    nil = sum(
+        jax.lax.select(jnp.asarray(False), jnp.sum(t).real, jnp.zeros((), jnp.sum(t).real.dtype)) for t in nonzero
+    )
     keep = _unmarked(fixed_dt)
 
     def marked(name, value, dvalue):
@@ -51,8 +57,10 @@ def _evolving_tangents_jvp(fixed_dt, primals, tangents):
         base = jnp.zeros_like(value) if isinstance(dvalue, SymbolicZero) else dvalue
         return base + nil.astype(value.dtype)
 
-    return state, dataclasses.replace(dstate, **{f.name: marked(f.name, getattr(state, f.name), getattr(dstate, f.name))
-                                                 for f in dataclasses.fields(state)})
+    return state, dataclasses.replace(
+        dstate,
+        **{f.name: marked(f.name, getattr(state, f.name), getattr(dstate, f.name)) for f in dataclasses.fields(state)},
+    )
 
 
 evolving_tangents.defjvp(_evolving_tangents_jvp, symbolic_zeros=True)

@@ -26,6 +26,7 @@ tests/test_transfer_forms.py checks that every form gives the values and gradien
 form. A windowed scatter and gather of (N, S, C) rows (particles major, no blocks) measured no
 faster for the DDMP steps (one field 1.36x slower, three fields and the debris cloud within 2%).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -81,10 +82,12 @@ def cell_sum(st, field, n_fields, n_cells, values):
 
 _outer = bilinear_contraction(
     lambda a, b: sum(a[:, s, :, None] * b[:, s, None, :] for s in range(a.shape[1])),
-    lambda a, b: jnp.sum(a[:, :, :, None] * b[:, :, None, :], axis=1))
+    lambda a, b: jnp.sum(a[:, :, :, None] * b[:, :, None, :], axis=1),
+)
 _apply = bilinear_contraction(
     lambda m, b: sum(m[:, None, :, k] * b[:, :, None, k] for k in range(m.shape[-1])),
-    lambda m, b: jnp.sum(m[:, None, :, :] * b[:, :, None, :], axis=-1))
+    lambda m, b: jnp.sum(m[:, None, :, :] * b[:, :, None, :], axis=-1),
+)
 
 
 def stencil_outer(a, b):
@@ -116,14 +119,14 @@ class OffsetStencil:
     against the (N, S, C) form in one interleaved run (benchmarks/apic_transfer.py): forward 1.5x
     (2D 128^2) and 1.3x (3D 48^3) faster, gradient 1.7x and 2.3x."""
 
-    w1: jax.Array        # (width, d, N) 1D weights along each axis
-    fx: jax.Array        # (d, N) position past the stencil's first node, in cells
-    base: jax.Array      # (N,) int32 flat index of the stencil's first node
+    w1: jax.Array  # (width, d, N) 1D weights along each axis
+    fx: jax.Array  # (d, N) position past the stencil's first node, in cells
+    base: jax.Array  # (N,) int32 flat index of the stencil's first node
     offsets: np.ndarray  # (S, d) int32 offsets, first axis slowest (as in `shapes.Stencil`)
     strides: np.ndarray  # (d,) int32 flat-index strides of the nodes
-    h: float             # cell size, m
-    corner: jax.Array    # (d, N) int32 node multi-index of the stencil's first node
-    nodes: tuple         # nodes per axis
+    h: float  # cell size, m
+    corner: jax.Array  # (d, N) int32 node multi-index of the stencil's first node
+    nodes: tuple  # nodes per axis
 
 
 def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
@@ -132,14 +135,22 @@ def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
     `shapes.bspline2_stencil` / `shapes.linear_stencil`."""
     width, shift, hi_clip, weights_1d = TENSOR_SHAPES[shape]
     d = grid.dim
-    xi = ((x - jnp.asarray(grid.origin, x.dtype)) / grid.h).T                           # (d, N)
+    xi = ((x - jnp.asarray(grid.origin, x.dtype)) / grid.h).T  # (d, N)
     base = jnp.clip(jnp.floor(xi - shift).astype(jnp.int32), 0, (np.asarray(grid.cells) - hi_clip)[:, None])
     fx = xi - base
-    w1 = jnp.stack(weights_1d(fx))                                                      # (width, d, N)
+    w1 = jnp.stack(weights_1d(fx))  # (width, d, N)
     strides = node_strides(grid.nodes)
     flat = sum(base[k] * int(strides[k]) for k in range(d))
-    return OffsetStencil(w1=w1, fx=fx, base=flat, offsets=stencil_offsets(d, width), strides=strides, h=grid.h,
-                         corner=base, nodes=tuple(grid.nodes))
+    return OffsetStencil(
+        w1=w1,
+        fx=fx,
+        base=flat,
+        offsets=stencil_offsets(d, width),
+        strides=strides,
+        h=grid.h,
+        corner=base,
+        nodes=tuple(grid.nodes),
+    )
 
 
 def _at_offset(ost, i):
@@ -157,7 +168,8 @@ def _at_offset(ost, i):
 def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
     """sum_p over every stencil offset of contrib(w, dpos) (C, N) into nodes: returns (n_nodes, C).
     contrib gets the offset's weights w (N,) and x_n - x_p (d, N); one scatter of C rows per offset."""
-    @jax.checkpoint           # reverse mode recomputes the offset's weights instead of storing S copies
+
+    @jax.checkpoint  # reverse mode recomputes the offset's weights instead of storing S copies
     def add(i, out):
         w, dpos, node = _at_offset(ost, i)
         return out.at[:, node].add(contrib(w, dpos), mode="promise_in_bounds")
@@ -169,6 +181,7 @@ def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
 def gather_by_offset(ost, nodal, accumulate, init):
     """Fold the nodal values (C, n_nodes) at every stencil offset into a per-particle carry:
     carry = accumulate(carry, w, dpos, values) with values (C, N) at the offset's nodes."""
+
     @jax.checkpoint
     def step(i, carry):
         w, dpos, node = _at_offset(ost, i)
@@ -178,7 +191,7 @@ def gather_by_offset(ost, nodal, accumulate, init):
 
 
 # ------------------------------------------------------------ the scatter in blocks of particles
-WINDOW_BLOCK = 8     # particles per block: one 256-bit vector of float32 (two of float64)
+WINDOW_BLOCK = 8  # particles per block: one 256-bit vector of float32 (two of float64)
 
 
 def _block(a, n_blocks, block):
@@ -210,8 +223,8 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     particle-to-grid transfer alone is 3-4x faster in 3D than the offset loop and 2x in 2D."""
     width, d, n = ost.w1.shape
     nb = -(-n // block)
-    w1 = _block(ost.w1, nb, block)                                              # (width, d, nb, block)
-    fx = _block(ost.fx, nb, block)                                              # (d, nb, block)
+    w1 = _block(ost.w1, nb, block)  # (width, d, nb, block)
+    fx = _block(ost.fx, nb, block)  # (d, nb, block)
     w = _on_axis(w1[:, 0], 0, d)
     for k in range(1, d):
         w = w * _on_axis(w1[:, k], k, d)
@@ -219,10 +232,12 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     dpos = tuple(_on_axis((o - fx[k]) * ost.h, k, d) for k in range(d))
     blocked = [_block(a, nb, block).reshape(a.shape[:-1] + (nb,) + (1,) * d + (block,)) for a in inputs]
     parts = contrib(w, dpos, *blocked)
-    updates = jnp.stack([jnp.broadcast_to(c, w.shape).astype(dtype) for c in parts], -2)   # (nb, width x d, C, block)
-    idx = jnp.moveaxis(_block(ost.corner, nb, block), 0, -1)                  # (nb, block, d)
-    dn = jax.lax.ScatterDimensionNumbers(update_window_dims=tuple(range(1, d + 2)), inserted_window_dims=(),
-                                         scatter_dims_to_operand_dims=tuple(range(d)))
-    out = jax.lax.scatter_add(jnp.zeros(ost.nodes + (n_channels,), dtype), idx, updates, dn,
-                              mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+    updates = jnp.stack([jnp.broadcast_to(c, w.shape).astype(dtype) for c in parts], -2)  # (nb, width x d, C, block)
+    idx = jnp.moveaxis(_block(ost.corner, nb, block), 0, -1)  # (nb, block, d)
+    dn = jax.lax.ScatterDimensionNumbers(
+        update_window_dims=tuple(range(1, d + 2)), inserted_window_dims=(), scatter_dims_to_operand_dims=tuple(range(d))
+    )
+    out = jax.lax.scatter_add(
+        jnp.zeros(ost.nodes + (n_channels,), dtype), idx, updates, dn, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+    )
     return out.reshape(-1, n_channels)

@@ -1,4 +1,5 @@
 """Verification runs in float64 (tests about float32 switch dtype explicitly)."""
+
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")

@@ -1,6 +1,7 @@
 """Exact solution of the Riemann problem for an ideal gas (Toro, Riemann Solvers and Numerical
 Methods for Fluid Dynamics, ch. 4): the star pressure by Newton's method on the pressure
 function, then the wave pattern sampled at x / t."""
+
 import math
 
 import numpy as np
@@ -42,12 +43,12 @@ def sample(x, t, x0, left, right, gamma):
     g1, g2 = (gamma - 1) / (gamma + 1), (gamma - 1) / (2 * gamma)
     out = np.empty((3, len(x)))
     for i, s in enumerate((np.asarray(x) - x0) / t):
-        if s <= us:                                    # left of the contact
+        if s <= us:  # left of the contact
             a = math.sqrt(gamma * pl / rl)
-            if ps > pl:                                # left shock
+            if ps > pl:  # left shock
                 S = ul - a * math.sqrt((gamma + 1) / (2 * gamma) * ps / pl + g2)
                 out[:, i] = (rl * (ps / pl + g1) / (g1 * ps / pl + 1), us, ps) if s > S else (rl, ul, pl)
-            else:                                      # left rarefaction
+            else:  # left rarefaction
                 a_s = a * (ps / pl) ** g2
                 if s <= ul - a:
                     out[:, i] = (rl, ul, pl)
@@ -55,14 +56,17 @@ def sample(x, t, x0, left, right, gamma):
                     out[:, i] = (rl * (ps / pl) ** (1 / gamma), us, ps)
                 else:
                     c = 2 / (gamma + 1) + g1 / a * (ul - s)
-                    out[:, i] = (rl * c ** (2 / (gamma - 1)), 2 / (gamma + 1) * (a + (gamma - 1) / 2 * ul + s),
-                                 pl * c ** (2 * gamma / (gamma - 1)))
-        else:                                          # right of the contact
+                    out[:, i] = (
+                        rl * c ** (2 / (gamma - 1)),
+                        2 / (gamma + 1) * (a + (gamma - 1) / 2 * ul + s),
+                        pl * c ** (2 * gamma / (gamma - 1)),
+                    )
+        else:  # right of the contact
             a = math.sqrt(gamma * pr / rr)
-            if ps > pr:                                # right shock
+            if ps > pr:  # right shock
                 S = ur + a * math.sqrt((gamma + 1) / (2 * gamma) * ps / pr + g2)
                 out[:, i] = (rr * (ps / pr + g1) / (g1 * ps / pr + 1), us, ps) if s < S else (rr, ur, pr)
-            else:                                      # right rarefaction
+            else:  # right rarefaction
                 a_s = a * (ps / pr) ** g2
                 if s >= ur + a:
                     out[:, i] = (rr, ur, pr)
@@ -70,6 +74,9 @@ def sample(x, t, x0, left, right, gamma):
                     out[:, i] = (rr * (ps / pr) ** (1 / gamma), us, ps)
                 else:
                     c = 2 / (gamma + 1) - g1 / a * (ur - s)
-                    out[:, i] = (rr * c ** (2 / (gamma - 1)), 2 / (gamma + 1) * (-a + (gamma - 1) / 2 * ur + s),
-                                 pr * c ** (2 * gamma / (gamma - 1)))
+                    out[:, i] = (
+                        rr * c ** (2 / (gamma - 1)),
+                        2 / (gamma + 1) * (-a + (gamma - 1) / 2 * ur + s),
+                        pr * c ** (2 * gamma / (gamma - 1)),
+                    )
     return out

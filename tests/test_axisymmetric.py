@@ -1,5 +1,6 @@
 """2D axisymmetric (r, z) geometry (PHYSICS 2.3): volumes per radian, hoop stress and hoop rate,
 the axis condition v_r = 0; checked against the exact radial vibration of an elastic cylinder."""
+
 import dataclasses
 
 import jax
@@ -21,7 +22,9 @@ def bessel_j(n, x):
 def radial_mode(lam, mu, R):
     """Wavenumber k of the first radial mode u = J1(k r) of a solid cylinder with a free surface
     in plane strain: (lambda + 2 mu) u'(R) + lambda u(R) / R = 0 (bisection)."""
-    f = lambda k: float(((lam + 2 * mu) * k * (bessel_j(0, k * R) - bessel_j(1, k * R) / (k * R)) + lam * bessel_j(1, k * R) / R)[0])
+    f = lambda k: float(
+        ((lam + 2 * mu) * k * (bessel_j(0, k * R) - bessel_j(1, k * R) / (k * R)) + lam * bessel_j(1, k * R) / R)[0]
+    )
     lo, hi = 0.5 / R, 3.0 / R
     for _ in range(80):
         mid = 0.5 * (lo + hi)
@@ -36,10 +39,17 @@ def cylinder_frequency(cells, shape="ddmp", cfl=0.2):
     omega = k * np.sqrt((lam + 2 * mu) / rho)
     h = R / cells
     mat = jaxmpm.Material.make("m", "hypoelastic", rho0=rho, E=E, nu=nu)
-    scene = Scene(grid=Grid(cells=(cells + 2, 4), h=h), materials=(mat,), axisymmetric=True, shape=shape,
-                  phases=(Phase("cylinder", "m", Box((0.0, 0.0), (R, 4 * h))),),
-                  boundary=Boundary(faces=(("y_lo", "slip"), ("y_hi", "slip"))),    # uniform in z
-                  cfl=cfl, t_end=3 * np.pi / omega * 1.1, n_out=100)
+    scene = Scene(
+        grid=Grid(cells=(cells + 2, 4), h=h),
+        materials=(mat,),
+        axisymmetric=True,
+        shape=shape,
+        phases=(Phase("cylinder", "m", Box((0.0, 0.0), (R, 4 * h))),),
+        boundary=Boundary(faces=(("y_lo", "slip"), ("y_hi", "slip"))),  # uniform in z
+        cfl=cfl,
+        t_end=3 * np.pi / omega * 1.1,
+        n_out=100,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     r = np.asarray(s0.x[:, 0])
@@ -47,12 +57,17 @@ def cylinder_frequency(cells, shape="ddmp", cfl=0.2):
     s0 = dataclasses.replace(s0, v=jnp.stack([1e-4 * shape_r, jnp.zeros_like(shape_r)], -1))
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
     t = np.asarray(hist.t)
-    amp = np.asarray(jnp.sum(s0.mass * hist.v[:, :, 0] * shape_r, axis=1))     # projection on the mode
-    crossings = [t[i] - amp[i] * (t[i + 1] - t[i]) / (amp[i + 1] - amp[i]) for i in range(len(t) - 1)
-                 if np.sign(amp[i]) != np.sign(amp[i + 1])]
+    amp = np.asarray(jnp.sum(s0.mass * hist.v[:, :, 0] * shape_r, axis=1))  # projection on the mode
+    crossings = [
+        t[i] - amp[i] * (t[i + 1] - t[i]) / (amp[i + 1] - amp[i])
+        for i in range(len(t) - 1)
+        if np.sign(amp[i]) != np.sign(amp[i + 1])
+    ]
     e0 = float(jaxmpm.diagnostics.kinetic_energy(s0))
-    energy = [float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
-              for s in (jax.tree.map(lambda a: a[i], hist) for i in range(len(t)))]
+    energy = [
+        float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
+        for s in (jax.tree.map(lambda a: a[i], hist) for i in range(len(t)))
+    ]
     return np.pi / (crossings[1] - crossings[0]), omega, max(abs(e / e0 - 1) for e in energy)
 
 
@@ -78,10 +93,19 @@ def test_axis_holds_v_r_zero_and_a_sphere_on_a_plate_conserves_mass_and_axial_mo
     2 km/s with the closure; the nodes on the axis never move radially, mass is exact, the axial
     momentum is conserved (no wall acts along z) and kinetic + internal energy within 1%."""
     al = library_material("al2024")
-    scene = Scene(grid=Grid(cells=(16, 28), h=0.5e-3), materials=(al,), axisymmetric=True,
-                  phases=(Phase("projectile", "al2024", Sphere((0.0, 0.0095), 0.003), velocity=(0.0, -2000.0)),
-                          Phase("plate", "al2024", Box((0.0, 0.004), (0.0075, 0.006)))),
-                  c_h=0.15, artificial_viscosity=(0.5, 2.0), t_end=2e-6, n_out=2)
+    scene = Scene(
+        grid=Grid(cells=(16, 28), h=0.5e-3),
+        materials=(al,),
+        axisymmetric=True,
+        phases=(
+            Phase("projectile", "al2024", Sphere((0.0, 0.0095), 0.003), velocity=(0.0, -2000.0)),
+            Phase("plate", "al2024", Box((0.0, 0.004), (0.0075, 0.006))),
+        ),
+        c_h=0.15,
+        artificial_viscosity=(0.5, 2.0),
+        t_end=2e-6,
+        n_out=2,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
@@ -93,34 +117,58 @@ def test_axis_holds_v_r_zero_and_a_sphere_on_a_plate_conserves_mass_and_axial_mo
     e0 = float(jaxmpm.diagnostics.kinetic_energy(s0))
     e1 = float(jaxmpm.diagnostics.kinetic_energy(final) + jaxmpm.diagnostics.internal_energy(final))
     assert abs(e1 / e0 - 1) < 0.01, e1 / e0 - 1
-    assert float(final.eps_ps.max()) > 0.1                      # it flowed plastically
+    assert float(final.eps_ps.max()) > 0.1  # it flowed plastically
     lay = jaxmpm.step.Layout.of(scene)
     assert np.all(lay.bc_mask.reshape(scene.grid.nodes + (2,))[0, :, 0] == 0.0)
 
 
-@pytest.mark.parametrize("kw, match", [
-    (dict(speed=0.0), r"speed = 0.0 is invalid: allowed a finite number > 0 m/s \(the impact speed"),
-    (dict(speed=-6710.0), r"speed = -6710.0 is invalid"),
-    (dict(plate_thickness=0.0), r"plate_thickness = 0.0 is invalid: allowed a finite number > 0"),
-    (dict(gap=-1e-3), r"gap = -0.001 is invalid: allowed a finite number >= 0 m \(from the sphere to the plate's top face"),
-    (dict(resolution=0.5), r"resolution = 0.5 is invalid: allowed a finite number >= 0.724 \(4 cells across the plate\)"),
-    (dict(fields=3), r"fields = 3 is invalid: allowed 1 \| 2"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(speed=0.0), r"speed = 0.0 is invalid: allowed a finite number > 0 m/s \(the impact speed"),
+        (dict(speed=-6710.0), r"speed = -6710.0 is invalid"),
+        (dict(plate_thickness=0.0), r"plate_thickness = 0.0 is invalid: allowed a finite number > 0"),
+        (
+            dict(gap=-1e-3),
+            r"gap = -0.001 is invalid: allowed a finite number >= 0 m \(from the sphere to the plate's top face",
+        ),
+        (
+            dict(resolution=0.5),
+            r"resolution = 0.5 is invalid: allowed a finite number >= 0.724 \(4 cells across the plate\)",
+        ),
+        (dict(fields=3), r"fields = 3 is invalid: allowed 1 \| 2"),
+    ],
+)
 def test_bad_debris_cloud_options(kw, match):
     with pytest.raises(ValueError, match=match):
         jaxmpm.load_scene("debris_cloud", **kw)
 
 
-@pytest.mark.parametrize("kw, match", [
-    (dict(grid=Grid(cells=(4, 4, 4), h=0.1), phases=(Phase("b", "m", Box((0.1, 0.1, 0.1), (0.3, 0.3, 0.3))),)),
-     r"axisymmetric = True is invalid: allowed only with a 2D \(r, z\) grid"),
-    (dict(grid=Grid(cells=(6, 4), h=0.1, origin=(-0.2, 0.0))), r"grid\.origin\[0\] = -0\.2 is invalid: allowed >= 0 m"),
-    (dict(shape="bspline2", transfer="apic"), r"axisymmetric = True is invalid: allowed only with shape 'ddmp' or 'linear'"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (
+            dict(grid=Grid(cells=(4, 4, 4), h=0.1), phases=(Phase("b", "m", Box((0.1, 0.1, 0.1), (0.3, 0.3, 0.3))),)),
+            r"axisymmetric = True is invalid: allowed only with a 2D \(r, z\) grid",
+        ),
+        (
+            dict(grid=Grid(cells=(6, 4), h=0.1, origin=(-0.2, 0.0))),
+            r"grid\.origin\[0\] = -0\.2 is invalid: allowed >= 0 m",
+        ),
+        (
+            dict(shape="bspline2", transfer="apic"),
+            r"axisymmetric = True is invalid: allowed only with shape 'ddmp' or 'linear'",
+        ),
+    ],
+)
 def test_bad_axisymmetric_scenes(kw, match):
     m = jaxmpm.Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
-    args = dict(grid=Grid(cells=(4, 4), h=0.1), materials=(m,), phases=(Phase("b", "m", Box((0.1, 0.1), (0.3, 0.3))),),
-                axisymmetric=True)
+    args = dict(
+        grid=Grid(cells=(4, 4), h=0.1),
+        materials=(m,),
+        phases=(Phase("b", "m", Box((0.1, 0.1), (0.3, 0.3))),),
+        axisymmetric=True,
+    )
     args.update(kw)
     with pytest.raises(ValueError, match=match):
         Scene(**args)
@@ -128,8 +176,14 @@ def test_bad_axisymmetric_scenes(kw, match):
 
 def test_axisymmetric_scene_file_round_trips_and_writes_per_radian_units(tmp_path):
     m = jaxmpm.Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
-    scene = Scene(grid=Grid(cells=(6, 6), h=0.1), materials=(m,), axisymmetric=True, t_end=1e-3, n_out=1,
-                  phases=(Phase("b", "m", Box((0.0, 0.1), (0.3, 0.3))),))
+    scene = Scene(
+        grid=Grid(cells=(6, 6), h=0.1),
+        materials=(m,),
+        axisymmetric=True,
+        t_end=1e-3,
+        n_out=1,
+        phases=(Phase("b", "m", Box((0.0, 0.1), (0.3, 0.3))),),
+    )
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
     params = jaxmpm.default_params(scene)
     _, hist = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), progress=False)
@@ -149,15 +203,28 @@ def test_two_fields_with_the_closure_and_interface_forces_do_not_create_energy()
     full pressure in the common pressure (E6) while its own stress force carries only alpha p (E8),
     this run gained 37% by 2 us; the common pressure now takes alpha p."""
     al = library_material("al2024")
-    scene = Scene(grid=Grid(cells=(16, 28), h=0.5e-3), materials=(al,), axisymmetric=True, shape="linear",
-                  phases=(Phase("projectile", "al2024", Sphere((0.0, 0.0095), 0.003), velocity=(0.0, -2000.0), field=0),
-                          Phase("plate", "al2024", Box((0.0, 0.004), (0.0075, 0.006)), field=1)),
-                  drag=1.0, c_h=0.15, artificial_viscosity=(0.5, 2.0), t_end=2e-6, n_out=4)
+    scene = Scene(
+        grid=Grid(cells=(16, 28), h=0.5e-3),
+        materials=(al,),
+        axisymmetric=True,
+        shape="linear",
+        phases=(
+            Phase("projectile", "al2024", Sphere((0.0, 0.0095), 0.003), velocity=(0.0, -2000.0), field=0),
+            Phase("plate", "al2024", Box((0.0, 0.004), (0.0075, 0.006)), field=1),
+        ),
+        drag=1.0,
+        c_h=0.15,
+        artificial_viscosity=(0.5, 2.0),
+        t_end=2e-6,
+        n_out=4,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     _, hist = jaxmpm.simulate(scene, params, s0, progress=False)
-    e = [float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
-         for s in (jax.tree.map(lambda a: a[i], hist) for i in range(len(hist.t)))]
+    e = [
+        float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
+        for s in (jax.tree.map(lambda a: a[i], hist) for i in range(len(hist.t)))
+    ]
     assert max(e) <= e[0] * (1 + 1e-3), [x / e[0] - 1 for x in e]
 
 
@@ -171,7 +238,9 @@ def test_debris_cloud_first_version_runs_and_conserves():
     final, _ = jaxmpm.simulate(scene, params, s0, t_end=2e-6, n_out=1, progress=False)
     assert all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(final))
     np.testing.assert_array_equal(np.asarray(final.mass), np.asarray(s0.mass))
-    assert float(jaxmpm.diagnostics.momentum(final)[1]) == pytest.approx(float(jaxmpm.diagnostics.momentum(s0)[1]), rel=1e-10)
+    assert float(jaxmpm.diagnostics.momentum(final)[1]) == pytest.approx(
+        float(jaxmpm.diagnostics.momentum(s0)[1]), rel=1e-10
+    )
     e0 = float(jaxmpm.diagnostics.kinetic_energy(s0))
     e1 = float(jaxmpm.diagnostics.kinetic_energy(final) + jaxmpm.diagnostics.internal_energy(final))
     assert abs(e1 / e0 - 1) < 0.01
@@ -192,13 +261,19 @@ def test_soft_feature_velocities_agree_with_the_hard_definitions(coarse_cloud):
     scene, _, _, hist = coarse_cloud
     soft = np.asarray(features.feature_velocities(scene, hist, first=2))
     at = lambda k: jax.tree.map(lambda a: a[k], hist)
-    hard = np.asarray(features.slope(hist.t[2:], jnp.stack([features.hard_feature_positions(scene, at(k))
-                                                             for k in range(2, len(hist.t))])))
-    assert np.all(hard < -1000.0)                                   # all three move downstream
+    hard = np.asarray(
+        features.slope(
+            hist.t[2:], jnp.stack([features.hard_feature_positions(scene, at(k)) for k in range(2, len(hist.t))])
+        )
+    )
+    assert np.all(hard < -1000.0)  # all three move downstream
     np.testing.assert_allclose(soft, hard, rtol=0.02)
     # the soft positions lie inside the hard extremes by less than a cell
     for k in range(len(hist.t)):
-        s, hd = np.asarray(features.feature_positions(scene, at(k))), np.asarray(features.hard_feature_positions(scene, at(k)))
+        s, hd = (
+            np.asarray(features.feature_positions(scene, at(k))),
+            np.asarray(features.hard_feature_positions(scene, at(k))),
+        )
         assert np.all(np.abs(s - hd) < scene.grid.h)
 
 
@@ -209,7 +284,7 @@ def test_feature_positions_have_finite_gradients_everywhere(coarse_cloud):
     state = jax.tree.map(lambda a: a[-1], hist)
     g = jax.jacrev(lambda x: features.feature_positions(scene, dataclasses.replace(state, x=x)))(state.x)
     assert np.isfinite(np.asarray(g)).all()
-    assert np.all(np.abs(np.asarray(g)).sum(axis=(1, 2)) > 0.99)   # each feature is a weighted mean of z's
+    assert np.all(np.abs(np.asarray(g)).sum(axis=(1, 2)) > 0.99)  # each feature is a weighted mean of z's
 
 
 @pytest.mark.slow
@@ -220,7 +295,9 @@ def test_gradient_of_a_feature_velocity_with_respect_to_c_h_is_finite(coarse_clo
     n = jaxmpm.plan_steps(scene, params, s0, 3e-6)
 
     def front_speed(c_h):
-        _, h = jaxmpm.simulate(scene, dataclasses.replace(params, c_h=c_h), s0, t_end=3e-6, n_out=6, n_steps=n, checkpoint=True)
+        _, h = jaxmpm.simulate(
+            scene, dataclasses.replace(params, c_h=c_h), s0, t_end=3e-6, n_out=6, n_steps=n, checkpoint=True
+        )
         return features.feature_velocities(scene, h, first=2)[0]
 
     g = jax.grad(front_speed)(jnp.asarray(0.15))
@@ -238,8 +315,12 @@ def point_velocity_gradients():
     theta = jnp.log(jnp.array([1.0, 0.15]))
     J = np.asarray(jax.jit(jax.jacrev(model.velocities))(theta))
     f = jax.jit(model.velocities)
-    fd = {eps: np.stack([(np.asarray(f(theta + eps * e)) - np.asarray(f(theta - eps * e))) / (2 * eps) for e in np.eye(2)], 1)
-          for eps in (0.02, 0.005, 1e-6)}
+    fd = {
+        eps: np.stack(
+            [(np.asarray(f(theta + eps * e)) - np.asarray(f(theta - eps * e))) / (2 * eps) for e in np.eye(2)], 1
+        )
+        for eps in (0.02, 0.005, 1e-6)
+    }
     return J, fd
 
 
@@ -266,12 +347,15 @@ def test_gradient_of_the_projectile_rear_with_respect_to_c_h_matches_differences
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 7): "
-                   "at steps of 0.02 and 0.005 in log C_d the differences cross "
-                   "jumps of v_4 (AD -0.0126 km/s against +0.0007 and -0.056): the response to the drag is smooth "
-                   "pieces about 1e-3 wide joined by particle-level switches the drag moves in time, e.g. a particle "
-                   "entering a cell whose far node has no other mass of its field (traced at step 72: that node's "
-                   "velocity enters the DDMP velocity gradient at once). At step 1e-6 AD matches (test above)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation, documented in docs/limitations.md (issue 7): "
+    "at steps of 0.02 and 0.005 in log C_d the differences cross "
+    "jumps of v_4 (AD -0.0126 km/s against +0.0007 and -0.056): the response to the drag is smooth "
+    "pieces about 1e-3 wide joined by particle-level switches the drag moves in time, e.g. a particle "
+    "entering a cell whose far node has no other mass of its field (traced at step 72: that node's "
+    "velocity enters the DDMP velocity gradient at once). At step 1e-6 AD matches (test above)",
+)
 def test_gradient_of_the_projectile_rear_with_respect_to_c_d_matches_differences(point_velocity_gradients):
     J, fd = point_velocity_gradients
     for eps in (0.02, 0.005):

@@ -1,5 +1,6 @@
 """calibration/: the packaged experiment table, its checks, the batched runs it stands on (ensemble,
 sharding), the debris cloud's C_h sweep, and the gradient of the fit's loss."""
+
 import dataclasses
 import functools
 import os
@@ -32,16 +33,19 @@ def test_packaged_table_equals_the_shared_data():
 GOOD = "point,experiment_km_s,ch_0.02\n1,6.3,6.29\n2,6.1,5.97\n4,3.9,3.92\n"
 
 
-@pytest.mark.parametrize("text, match", [
-    (GOOD.replace("experiment_km_s", "exp"), "column 'experiment_km_s' is missing"),
-    (GOOD.replace("6.1,", "fast,"), r"row 2, column 'experiment_km_s': 'fast' is not a number"),
-    (GOOD.replace("3.92", "-3.92"), r"row 3, column 'ch_0.02': -3.92 km/s is invalid: allowed \(0, 20"),
-    (GOOD.replace("\n4,", "\n3,"), r"row 3, column 'point': point 3 is unknown: allowed \(1, 2, 4\)"),
-    (GOOD.replace("\n4,3.9,3.92\n", "\n"), "point 4 is missing"),
-    (GOOD.replace("\n2,", "\n1,"), "row 2, column 'point': point 1 is repeated"),
-    (GOOD.replace("ch_0.02", "ch_x"), "column 'ch_x': 'x' is not a value of C_h"),
-    (GOOD.replace("6.3,6.29", "6.3"), "row 1: has 2 values, the header 3"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (GOOD.replace("experiment_km_s", "exp"), "column 'experiment_km_s' is missing"),
+        (GOOD.replace("6.1,", "fast,"), r"row 2, column 'experiment_km_s': 'fast' is not a number"),
+        (GOOD.replace("3.92", "-3.92"), r"row 3, column 'ch_0.02': -3.92 km/s is invalid: allowed \(0, 20"),
+        (GOOD.replace("\n4,", "\n3,"), r"row 3, column 'point': point 3 is unknown: allowed \(1, 2, 4\)"),
+        (GOOD.replace("\n4,3.9,3.92\n", "\n"), "point 4 is missing"),
+        (GOOD.replace("\n2,", "\n1,"), "row 2, column 'point': point 1 is repeated"),
+        (GOOD.replace("ch_0.02", "ch_x"), "column 'ch_x': 'x' is not a value of C_h"),
+        (GOOD.replace("6.3,6.29", "6.3"), "row 1: has 2 values, the header 3"),
+    ],
+)
 def test_bad_tables_are_refused_naming_row_and_column(tmp_path, text, match):
     path = tmp_path / "t.csv"
     path.write_text(text)
@@ -64,7 +68,9 @@ def test_ensemble_equals_the_single_runs():
     for i in range(4):
         f1, h1 = jaxmpm.simulate(scene, jaxmpm.batch.member(batch, i), s0, t_end=3e-7, n_out=2, n_steps=n)
         for a, b in zip(jax.tree.leaves(jaxmpm.batch.member((final, hist), i)), jax.tree.leaves((f1, h1))):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b)) + 1e-30))
+            np.testing.assert_allclose(
+                np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b)) + 1e-30)
+            )
     # the members differ (the sweep is not a broadcast of one)
     assert float(jnp.max(jnp.abs(final.v[0] - final.v[3]))) > 1.0
 
@@ -95,10 +101,14 @@ print("sharded == unsharded")
 """
 
 
-@pytest.mark.slow                # 43 s; the two-device step is checked in the default run (test_distributed)
+@pytest.mark.slow  # 43 s; the two-device step is checked in the default run (test_distributed)
 def test_sharded_ensemble_on_two_host_devices_equals_the_unsharded_one():
-    env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
-               JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    env = dict(
+        os.environ,
+        XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
+        JAX_PLATFORMS="cpu",
+        JAX_ENABLE_X64="1",
+    )
     r = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "sharded == unsharded" in r.stdout
@@ -112,8 +122,9 @@ def _sweep(fragmentation):
     model = CloudModel.build(resolution=0.75, fields=1, fragmentation=fragmentation)
     values = np.array([0.02, 0.15, 0.5, 1.0])
     batch = jaxmpm.batch.sweep(model.params, c_h=values)
-    final, hist = jaxmpm.ensemble(model.scene, batch, model.state, t_end=model.t_end, n_out=model.n_out,
-                                  n_steps=model.n_steps, allow_short=True)
+    final, hist = jaxmpm.ensemble(
+        model.scene, batch, model.state, t_end=model.t_end, n_out=model.n_out, n_steps=model.n_steps, allow_short=True
+    )
     v = np.asarray(jax.vmap(model.velocities_of_history)(hist))
     print(f"fragmentation {fragmentation!r}: points 1, 2, 4 (km/s) for C_h = {values.tolist()}:\n{v.round(3)}")
     return model, final, v
@@ -193,19 +204,26 @@ def test_ensemble_runs_again_when_its_own_plan_falls_short():
     runs the batch again with more steps, says so, and every member reaches t_end."""
     scene, params, _ = _small_cloud()
     batch = jaxmpm.batch.sweep(params, c_h=[0.1, 0.2])
-    with pytest.warns(RuntimeWarning, match=r"planned n_steps = (\d+) reached only .* running the batch again with n_steps = (\d+)") as rec:
+    with pytest.warns(
+        RuntimeWarning, match=r"planned n_steps = (\d+) reached only .* running the batch again with n_steps = (\d+)"
+    ) as rec:
         final, hist = jaxmpm.ensemble(scene, batch, t_end=3e-7, n_out=2)
-    planned, replanned = (int(k) for k in re.search(r"n_steps = (\d+) reached.* n_steps = (\d+)", str(rec[0].message)).groups())
+    planned, replanned = (
+        int(k) for k in re.search(r"n_steps = (\d+) reached.* n_steps = (\d+)", str(rec[0].message)).groups()
+    )
     assert replanned > planned
     np.testing.assert_allclose(np.asarray(final.t), 3e-7, rtol=1e-9)
     np.testing.assert_allclose(np.asarray(hist.t)[:, -1], 3e-7, rtol=1e-9)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 7): "
-                   "at resolution 0.75 the debris front (point 1) leads the "
-                   "projectile's front (point 2) by 3 m/s only (5.593, 5.590 km/s at C_h = 0.02; experiment 6.3, "
-                   "6.1: 0.2 km/s); at resolution 2 point 2 leads (5.62, 5.74)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation, documented in docs/limitations.md (issue 7): "
+    "at resolution 0.75 the debris front (point 1) leads the "
+    "projectile's front (point 2) by 3 m/s only (5.593, 5.590 km/s at C_h = 0.02; experiment 6.3, "
+    "6.1: 0.2 km/s); at resolution 2 point 2 leads (5.62, 5.74)",
+)
 def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
     """The experiment's debris front leads the projectile's front by 0.2 km/s; at least half that.
     (A bare v1 > v2 passed by 3 m/s once the closure's ambient became per phase, E8, 2026-12-03.)"""
@@ -214,15 +232,18 @@ def test_coarse_cloud_debris_front_leads_the_projectile_front(ch_sweep):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issues 7, 11): "
-                   "the coarse cloud's response to C_d is a sawtooth: smooth "
-                   "pieces about 1e-3 wide in log C_d joined by jumps, so AD (the slope of a piece, which central "
-                   "differences at step 1e-6 confirm: test below) and differences at steps 0.02 and 0.005 (the slope "
-                   "across jumps) disagree: d loss / d log C_d = 1.00 by AD against 1.04 and 0.91. The jumps come "
-                   "from particle-level switches the drag moves in time, e.g. a particle entering a cell whose far "
-                   "node has no other mass of its field, whose velocity then enters the DDMP velocity gradient at "
-                   "once, or a molten projectile particle whose Johnson-Cook damage starts to grow one step "
-                   "earlier when its pressure changes sign. The C_h component agrees at all steps (0.0331)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation, documented in docs/limitations.md (issues 7, 11): "
+    "the coarse cloud's response to C_d is a sawtooth: smooth "
+    "pieces about 1e-3 wide in log C_d joined by jumps, so AD (the slope of a piece, which central "
+    "differences at step 1e-6 confirm: test below) and differences at steps 0.02 and 0.005 (the slope "
+    "across jumps) disagree: d loss / d log C_d = 1.00 by AD against 1.04 and 0.91. The jumps come "
+    "from particle-level switches the drag moves in time, e.g. a particle entering a cell whose far "
+    "node has no other mass of its field, whose velocity then enters the DDMP velocity gradient at "
+    "once, or a molten projectile particle whose Johnson-Cook damage starts to grow one step "
+    "earlier when its pressure changes sign. The C_h component agrees at all steps (0.0331)",
+)
 def test_gradient_of_the_fit_loss_matches_finite_differences():
     """float64, two fields, 3 us, at (C_d, C_h) = (1, 0.15): both components of d loss / d log
     (C_d, C_h) within 5% of central differences at steps 0.02 and 0.005 (the issue's check)."""
@@ -261,32 +282,44 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     np.testing.assert_allclose(g, fd, rtol=1e-3)
 
 
-@pytest.mark.parametrize("argv, match", [
-    (["fit", "--start", "1.0"], r"--start '1.0' is invalid: allowed two numbers 'C_d,C_h'"),
-    (["fit", "--start=-1,0.1"], r"--start '-1,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
-    (["table", "--c-h", "0.1,-0.5"], r"--c-h '0.1,-0.5' is invalid: allowed C_h values > 0"),
-    (["fit", "--iterations", "0"], r"--iterations 0 is invalid: allowed an integer >= 1"),
-    (["table", "--drag=-1", "--fields", "2", "--c-h", "0.1"], r"--drag -1.0 is invalid: allowed a finite number > 0"),
-    (["table", "--drag", "nan"], r"--drag nan is invalid: allowed a finite number > 0"),
-    (["fit", "--learning-rate=-1"], r"--learning-rate -1.0 is invalid: allowed a finite number > 0"),
-    (["fit", "--learning-rate", "0"], r"--learning-rate 0.0 is invalid: allowed a finite number > 0"),
-    (["fit", "--learning-rate", "nan"], r"--learning-rate nan is invalid: allowed a finite number > 0"),
-    (["fit", "--fields", "1"], r"--fields 1 is invalid: allowed 2 \(C_d, the drag between the two velocity fields"),
-    (["table", "--fields", "3"], r"--fields 3 is invalid: allowed 1 \| 2"),
-    (["table", "--drag-heating"], r"--drag-heating is invalid with --fields 1: allowed only with --fields 2"),
-    (["table", "--c-h", "a,b"], r"--c-h 'a,b' is invalid: allowed comma-separated numbers"),
-    (["table", "--c-h", ""], r"--c-h '' is invalid: allowed comma-separated numbers"),
-    (["table", "--c-h", "0.1,inf"], r"--c-h '0.1,inf' is invalid: allowed C_h values > 0"),
-    (["fit", "--start", "inf,0.1"], r"--start 'inf,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
-    (["table", "--resolution", "0.5"], r"--resolution 0.5 is invalid: .* allowed a finite number >= 0.724 \(4 cells across the plate\)"),
-    (["table", "--resolution", "nan"], r"--resolution nan is invalid: allowed a finite number > 0"),
-    (["fit", "--t-end=-1"], r"--t-end -1.0 is invalid: allowed a finite number > 0 \(s\)"),
-    (["fit", "--landscape", "1"], r"--landscape 1 is invalid: allowed 0 \(none\) or an integer >= 2"),
-    (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
-    (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
-    (["table", "--step-safety", "0.5"], r"--step-safety 0.5 is invalid: allowed a finite number >= 1"),
-    (["table", "--data", "no/such/table.csv"], r"--data no/such/table.csv: no such file \(allowed the path of a CSV"),
-])
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["fit", "--start", "1.0"], r"--start '1.0' is invalid: allowed two numbers 'C_d,C_h'"),
+        (["fit", "--start=-1,0.1"], r"--start '-1,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
+        (["table", "--c-h", "0.1,-0.5"], r"--c-h '0.1,-0.5' is invalid: allowed C_h values > 0"),
+        (["fit", "--iterations", "0"], r"--iterations 0 is invalid: allowed an integer >= 1"),
+        (
+            ["table", "--drag=-1", "--fields", "2", "--c-h", "0.1"],
+            r"--drag -1.0 is invalid: allowed a finite number > 0",
+        ),
+        (["table", "--drag", "nan"], r"--drag nan is invalid: allowed a finite number > 0"),
+        (["fit", "--learning-rate=-1"], r"--learning-rate -1.0 is invalid: allowed a finite number > 0"),
+        (["fit", "--learning-rate", "0"], r"--learning-rate 0.0 is invalid: allowed a finite number > 0"),
+        (["fit", "--learning-rate", "nan"], r"--learning-rate nan is invalid: allowed a finite number > 0"),
+        (["fit", "--fields", "1"], r"--fields 1 is invalid: allowed 2 \(C_d, the drag between the two velocity fields"),
+        (["table", "--fields", "3"], r"--fields 3 is invalid: allowed 1 \| 2"),
+        (["table", "--drag-heating"], r"--drag-heating is invalid with --fields 1: allowed only with --fields 2"),
+        (["table", "--c-h", "a,b"], r"--c-h 'a,b' is invalid: allowed comma-separated numbers"),
+        (["table", "--c-h", ""], r"--c-h '' is invalid: allowed comma-separated numbers"),
+        (["table", "--c-h", "0.1,inf"], r"--c-h '0.1,inf' is invalid: allowed C_h values > 0"),
+        (["fit", "--start", "inf,0.1"], r"--start 'inf,0.1' is invalid: allowed C_d > 0 and C_h > 0"),
+        (
+            ["table", "--resolution", "0.5"],
+            r"--resolution 0.5 is invalid: .* allowed a finite number >= 0.724 \(4 cells across the plate\)",
+        ),
+        (["table", "--resolution", "nan"], r"--resolution nan is invalid: allowed a finite number > 0"),
+        (["fit", "--t-end=-1"], r"--t-end -1.0 is invalid: allowed a finite number > 0 \(s\)"),
+        (["fit", "--landscape", "1"], r"--landscape 1 is invalid: allowed 0 \(none\) or an integer >= 2"),
+        (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
+        (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
+        (["table", "--step-safety", "0.5"], r"--step-safety 0.5 is invalid: allowed a finite number >= 1"),
+        (
+            ["table", "--data", "no/such/table.csv"],
+            r"--data no/such/table.csv: no such file \(allowed the path of a CSV",
+        ),
+    ],
+)
 def test_calibration_command_refuses_bad_options(tmp_path, capsys, argv, match):
     """Refused with status 2 and a message naming the option and its range, before any run and
     before the --out folder is created."""
@@ -347,8 +380,12 @@ def synthetic_fit():
     model = DebrisInWaterModel.build()
     target = jax.jit(model.observables)(theta_of(*TRUTH))
     start = theta_of(2 * TRUTH[0], 2 * TRUTH[1])
-    return model, target, start, fit(model.observables, target, start, iterations=20, method="lbfgs", tol=1e-12,
-                                     progress=False)
+    return (
+        model,
+        target,
+        start,
+        fit(model.observables, target, start, iterations=20, method="lbfgs", tol=1e-12, progress=False),
+    )
 
 
 @pytest.mark.slow
@@ -358,7 +395,7 @@ def test_synthetic_recovery_from_two_times_away(synthetic_fit):
     _, _, _, res = synthetic_fit
     err = res.values / np.asarray(TRUTH) - 1
     assert np.all(np.abs(err) < 0.05), (res.values, res.stopped)
-    assert res.history[0]["loss"] > 1e3 * res.loss      # it did move
+    assert res.history[0]["loss"] > 1e3 * res.loss  # it did move
 
 
 @pytest.mark.slow
@@ -386,24 +423,33 @@ def test_fit_refuses_an_unknown_method():
         fit(lambda th: th, np.zeros(2), np.zeros(2), method="sgd")
 
 
-@pytest.mark.parametrize("options, match", [
-    (dict(learning_rate=-1.0), r"learning_rate = -1.0 is invalid: allowed a finite number > 0"),
-    (dict(learning_rate=0.0), r"learning_rate = 0.0 is invalid: allowed a finite number > 0"),
-    (dict(learning_rate=np.nan), r"learning_rate = nan is invalid: allowed a finite number > 0"),
-    (dict(decay=0.0), r"decay = 0.0 is invalid: allowed a number in \(0, 1\]"),
-    (dict(decay=1.5), r"decay = 1.5 is invalid: allowed a number in \(0, 1\]"),
-    (dict(tol=-1.0), r"tol = -1.0 is invalid: allowed a finite number >= 0"),
-    (dict(rtol=np.nan), r"rtol = nan is invalid: allowed a finite number >= 0"),
-    (dict(patience=0), r"patience = 0 is invalid: allowed an integer >= 1"),
-    (dict(theta0=np.zeros(3)), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
-    (dict(theta0=[np.nan, 0.0]), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
-    (dict(target=np.zeros(4)), r"target of shape \(4,\) is invalid: allowed the shape of velocities\(theta0\), \(3,\)"),
-    (dict(target=[6.3, np.inf, 3.9]), r"target = .* is invalid: allowed finite numbers"),
-    (dict(weights=[-1.0, 1.0, 1.0]), r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0, "
-     r"of target's shape \(3,\)"),
-    (dict(weights=[0.0, 0.0, 0.0]), r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0"),
-    (dict(weights=[1.0, 1.0]), r"weights = .* is invalid: .* of target's shape \(3,\)"),
-])
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        (dict(learning_rate=-1.0), r"learning_rate = -1.0 is invalid: allowed a finite number > 0"),
+        (dict(learning_rate=0.0), r"learning_rate = 0.0 is invalid: allowed a finite number > 0"),
+        (dict(learning_rate=np.nan), r"learning_rate = nan is invalid: allowed a finite number > 0"),
+        (dict(decay=0.0), r"decay = 0.0 is invalid: allowed a number in \(0, 1\]"),
+        (dict(decay=1.5), r"decay = 1.5 is invalid: allowed a number in \(0, 1\]"),
+        (dict(tol=-1.0), r"tol = -1.0 is invalid: allowed a finite number >= 0"),
+        (dict(rtol=np.nan), r"rtol = nan is invalid: allowed a finite number >= 0"),
+        (dict(patience=0), r"patience = 0 is invalid: allowed an integer >= 1"),
+        (dict(theta0=np.zeros(3)), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
+        (dict(theta0=[np.nan, 0.0]), r"theta0 = .* is invalid: allowed finite numbers of shape \(2,\)"),
+        (
+            dict(target=np.zeros(4)),
+            r"target of shape \(4,\) is invalid: allowed the shape of velocities\(theta0\), \(3,\)",
+        ),
+        (dict(target=[6.3, np.inf, 3.9]), r"target = .* is invalid: allowed finite numbers"),
+        (
+            dict(weights=[-1.0, 1.0, 1.0]),
+            r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0, "
+            r"of target's shape \(3,\)",
+        ),
+        (dict(weights=[0.0, 0.0, 0.0]), r"weights = .* is invalid: allowed None or finite numbers >= 0, not all 0"),
+        (dict(weights=[1.0, 1.0]), r"weights = .* is invalid: .* of target's shape \(3,\)"),
+    ],
+)
 def test_fit_refuses_bad_arguments_before_any_run(options, match):
     """ValueError naming the argument and its range; the model is never called (only traced for its
     output's shape)."""

@@ -1,4 +1,5 @@
 """The `jaxmpm` command: run, scenes, materials, show, refusal to overwrite, errors without tracebacks."""
+
 import os
 import re
 import subprocess
@@ -59,12 +60,24 @@ def test_a_failed_run_exits_1_and_says_what_its_restart_file_holds(tmp_path, cap
     """A disk thrown out of the grid: exit status 1, the particle named, the restart file left with
     a word on what resuming it would do; a second run into the folder names it as interrupted or
     failed."""
-    argv = ["run", "--out", str(tmp_path), "--no-progress", "--opt", "resolution=0.25", "--t-end", "0.05",
-            "--set", "phase.disk_a.velocity=[-15,0]"]
+    argv = [
+        "run",
+        "--out",
+        str(tmp_path),
+        "--no-progress",
+        "--opt",
+        "resolution=0.25",
+        "--t-end",
+        "0.05",
+        "--set",
+        "phase.disk_a.velocity=[-15,0]",
+    ]
     assert cli.main(argv) == 1
     err = capsys.readouterr().err
     assert "particle 0 of phase 'disk_a' is outside the grid at t = " in err
-    assert re.search(r"\(step \d+ of chunk \d+, chunks of \d+ steps\)", err)      # the step it happened at, as --debug names it
+    assert re.search(
+        r"\(step \d+ of chunk \d+, chunks of \d+ steps\)", err
+    )  # the step it happened at, as --debug names it
     assert f"{tmp_path / 'elastic_impact.restart.h5'} holds the last state saved before the failure" in err
     assert not any(p.exists() for p in _outputs(tmp_path))
     assert cli.main(argv) == 2
@@ -79,32 +92,41 @@ def test_run_refuses_if_any_output_exists(tmp_path, capsys):
     assert png.read_bytes() == b"keep" and sorted(os.listdir(tmp_path)) == [png.name]
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["--set", "grid.foo=1"], ["grid.foo"]),
-    (["--set", "phase.disk_z.velocity=[1.0,0.0]"], ["disk_z"]),
-    (["--set", "cfl=2.0"], ["cfl"]),
-    (["--set", "no_equals_sign"], ["--set", "key=value"]),
-    (["--opt", "resolution"], ["--opt key=value (e.g. --opt resolution=0.5)"]),
-    (["--opt", "resolution=0.5", "--opt", "resolution=0.25"], ["--opt resolution is given twice (0.5 and '0.25')"]),
-    (["--out", ""], ["--out '' is invalid: allowed a folder name"]),
-    (["--opt", "res=0.5"], ["res", "resolution"]),
-    (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
-    (["--opt", "resolution=abc"], ["--opt resolution='abc'", "allowed a number"]),
-    (["--opt", "shape=3"], ["--opt shape=3", "allowed a name"]),
-    (["debris_cloud", "--opt", "gap=abc"], ["gap = 'abc' is invalid", "allowed a finite number >= 0"]),   # default None: untyped
-    (["debris_cloud", "--opt", "gap=inf"], ["gap = inf is invalid", "allowed a finite number >= 0"]),
-    (["debris_cloud", "--opt", "gap=true"], ["gap = True is invalid", "allowed a finite number >= 0"]),
-    (["debris_cloud", "--opt", "gap=-0.001"], ["gap = -0.001 is invalid", "allowed a finite number >= 0 m (from the sphere to the plate's top face)"]),
-    (["--t-end", "inf"], ["--t-end inf is invalid: allowed a finite time > 0 s"]),
-    (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
-    (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
-    (["vibrating_bar", "--resume", "somewhere"], ["a scene is invalid with --resume"]),
-    (["elastic_impact", "--resume", "somewhere"], ["a scene is invalid with --resume"]),      # the default, named
-    (["--resume", "somewhere", "--out", "elsewhere"], ["--out is invalid with --resume", "in DIR"]),
-    (["--resume", "somewhere", "--out", "out"], ["--out is invalid with --resume"]),       # the default, named
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--set", "grid.foo=1"], ["grid.foo"]),
+        (["--set", "phase.disk_z.velocity=[1.0,0.0]"], ["disk_z"]),
+        (["--set", "cfl=2.0"], ["cfl"]),
+        (["--set", "no_equals_sign"], ["--set", "key=value"]),
+        (["--opt", "resolution"], ["--opt key=value (e.g. --opt resolution=0.5)"]),
+        (["--opt", "resolution=0.5", "--opt", "resolution=0.25"], ["--opt resolution is given twice (0.5 and '0.25')"]),
+        (["--out", ""], ["--out '' is invalid: allowed a folder name"]),
+        (["--opt", "res=0.5"], ["res", "resolution"]),
+        (["no_such_scene"], ["no_such_scene", "elastic_impact"]),
+        (["--opt", "resolution=abc"], ["--opt resolution='abc'", "allowed a number"]),
+        (["--opt", "shape=3"], ["--opt shape=3", "allowed a name"]),
+        (
+            ["debris_cloud", "--opt", "gap=abc"],
+            ["gap = 'abc' is invalid", "allowed a finite number >= 0"],
+        ),  # default None: untyped
+        (["debris_cloud", "--opt", "gap=inf"], ["gap = inf is invalid", "allowed a finite number >= 0"]),
+        (["debris_cloud", "--opt", "gap=true"], ["gap = True is invalid", "allowed a finite number >= 0"]),
+        (
+            ["debris_cloud", "--opt", "gap=-0.001"],
+            ["gap = -0.001 is invalid", "allowed a finite number >= 0 m (from the sphere to the plate's top face)"],
+        ),
+        (["--t-end", "inf"], ["--t-end inf is invalid: allowed a finite time > 0 s"]),
+        (["--resume", "somewhere", "--t-end", "5"], ["--t-end is invalid with --resume"]),
+        (["--resume", "somewhere", "--set", "t_end=9", "--n-out", "7"], ["--n-out, --set is invalid with --resume"]),
+        (["vibrating_bar", "--resume", "somewhere"], ["a scene is invalid with --resume"]),
+        (["elastic_impact", "--resume", "somewhere"], ["a scene is invalid with --resume"]),  # the default, named
+        (["--resume", "somewhere", "--out", "elsewhere"], ["--out is invalid with --resume", "in DIR"]),
+        (["--resume", "somewhere", "--out", "out"], ["--out is invalid with --resume"]),  # the default, named
+    ],
+)
 def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
-    out = [] if "--resume" in argv else ["--out", str(tmp_path)]      # --resume writes into its own DIR
+    out = [] if "--resume" in argv else ["--out", str(tmp_path)]  # --resume writes into its own DIR
     assert cli.main(["run", *out, "--no-progress", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "Traceback" not in err
@@ -133,7 +155,7 @@ def test_run_refuses_an_out_it_cannot_write_in_before_simulating(tmp_path, capsy
     assert cli.main(["run", "--out", str(tmp_path / "ro"), "--no-progress", *TINY]) == 2
     err = capsys.readouterr().err
     assert f"cannot write in {tmp_path / 'ro'}: Permission denied" in err and "Traceback" not in err
-    assert os.listdir(tmp_path) == []           # the folder it made for --out is removed again
+    assert os.listdir(tmp_path) == []  # the folder it made for --out is removed again
 
 
 def test_run_refuses_an_out_that_is_a_file_before_simulating(tmp_path, capsys):
@@ -141,7 +163,7 @@ def test_run_refuses_an_out_that_is_a_file_before_simulating(tmp_path, capsys):
     ofile.write_text("keep")
     assert cli.main(["run", "--out", str(ofile), "--no-progress", *TINY]) == 2
     err = capsys.readouterr()
-    assert f"--out {ofile} is a file: allowed a folder" in err.err and "particles" not in err.out   # nothing ran
+    assert f"--out {ofile} is a file: allowed a folder" in err.err and "particles" not in err.out  # nothing ran
     assert ofile.read_text() == "keep"
 
 
@@ -182,7 +204,9 @@ def _read_from(entry, name, model):
     return "eos" if name == "K" and "elastic" not in entry else None
 
 
-@pytest.mark.parametrize("key, model", [("al2024", None), ("concrete", None), ("water", "tait"), ("steel_4340", "hypoelastic")])
+@pytest.mark.parametrize(
+    "key, model", [("al2024", None), ("concrete", None), ("water", "tait"), ("steel_4340", "hypoelastic")]
+)
 def test_materials_shows_each_constant_with_its_unit_source_and_verification(key, model, capsys):
     from jaxmpm.materials import library, model_of
 
@@ -260,15 +284,18 @@ def test_run_refuses_to_start_without_disk_space(tmp_path, monkeypatch, capsys):
 
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
-    code = cli.main(["run", "--out", str(tmp_path / "o" / "p"), "--no-progress", "--opt", "resolution=0.25", "--t-end", "0.1"])
+    code = cli.main(
+        ["run", "--out", str(tmp_path / "o" / "p"), "--no-progress", "--opt", "resolution=0.25", "--t-end", "0.1"]
+    )
     assert code == 2
     err = capsys.readouterr().err
     assert "not enough disk space" in err and "MB are free" in err
-    assert os.listdir(tmp_path) == []          # the folders it made for --out are gone, nothing is left behind
+    assert os.listdir(tmp_path) == []  # the folders it made for --out are gone, nothing is left behind
 
 
-@pytest.mark.parametrize("name, options, t_end", [("elastic_impact", {"resolution": 0.25}, 0.2),
-                                                   ("taylor_bar", {"resolution": 0.3}, 1e-6)])    # axisymmetric: F (n, 3, 3)
+@pytest.mark.parametrize(
+    "name, options, t_end", [("elastic_impact", {"resolution": 0.25}, 0.2), ("taylor_bar", {"resolution": 0.3}, 1e-6)]
+)  # axisymmetric: F (n, 3, 3)
 def test_output_size_estimate_covers_the_file(tmp_path, name, options, t_end):
     import jaxmpm
     from jaxmpm import io

@@ -1,5 +1,6 @@
 """The continuous-to-disperse closure (E4, E5, E8): alpha = 1 - tanh(eps_ps / C_h) and the
 relaxation B of the fragmented part toward the ambient pressure."""
+
 import dataclasses
 
 import jax
@@ -12,13 +13,20 @@ import jaxmpm.shapes
 import jaxmpm.transfer
 from jaxmpm.scene import Box, Grid, Phase, Scene
 
-ROCK = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)   # 1D: c = 1000 m/s
+ROCK = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)  # 1D: c = 1000 m/s
 P0 = 5.0e6
 
 
 def block(c_h=0.1, cells=50, t_end=1e-4, **kw):
-    return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), materials=(ROCK,),
-                 phases=(Phase("block", "rock", Box((0.4,), (0.6,))),), c_h=c_h, t_end=t_end, n_out=10, **kw)
+    return Scene(
+        grid=Grid(cells=(cells,), h=1.0 / cells),
+        materials=(ROCK,),
+        phases=(Phase("block", "rock", Box((0.4,), (0.6,))),),
+        c_h=c_h,
+        t_end=t_end,
+        n_out=10,
+        **kw,
+    )
 
 
 def prepared(scene, eps, pressure=0.0, strain_rate=0.0):
@@ -27,9 +35,12 @@ def prepared(scene, eps, pressure=0.0, strain_rate=0.0):
     E = float(params.phases["block"]["E"])
     n = s.x.shape[0]
     return params, dataclasses.replace(
-        s, eps_ps=jnp.full(n, eps), stress=jnp.full((n, 1, 1), -pressure),
-        energy=jnp.full(n, pressure**2 / (2 * E * 2000.0)),           # stored elastic energy, J/kg
-        v=strain_rate * (s.x - 0.5))
+        s,
+        eps_ps=jnp.full(n, eps),
+        stress=jnp.full((n, 1, 1), -pressure),
+        energy=jnp.full(n, pressure**2 / (2 * E * 2000.0)),  # stored elastic energy, J/kg
+        v=strain_rate * (s.x - 0.5),
+    )
 
 
 def energy(s):
@@ -42,29 +53,36 @@ def test_intact_material_follows_the_velocity_divergence_as_without_closure():
     pb, sb = prepared(b_scene, 0.0, P0)
     fa, _ = jaxmpm.simulate(a_scene, pa, sa, progress=False)
     fb, _ = jaxmpm.simulate(b_scene, pb, sb, progress=False)
-    assert float(jaxmpm.diagnostics.kinetic_energy(fb)) > 0.1 * energy(sb)   # it does expand elastically
+    assert float(jaxmpm.diagnostics.kinetic_energy(fb)) > 0.1 * energy(sb)  # it does expand elastically
     for name in ("x", "v", "stress", "volume", "energy"):
-        np.testing.assert_allclose(np.asarray(getattr(fa, name)), np.asarray(getattr(fb, name)), rtol=1e-13, atol=1e-300)
+        np.testing.assert_allclose(
+            np.asarray(getattr(fa, name)), np.asarray(getattr(fb, name)), rtol=1e-13, atol=1e-300
+        )
 
 
 def test_fragmented_block_keeps_its_density_while_its_volume_fraction_falls():
     scene = block(c_h=0.01, t_end=2e-3)
-    params, s0 = prepared(scene, 1.0, 0.0, strain_rate=200.0)       # alpha = 1 - tanh(100)
+    params, s0 = prepared(scene, 1.0, 0.0, strain_rate=200.0)  # alpha = 1 - tanh(100)
     final, _ = jaxmpm.simulate(scene, params, s0, progress=False)
     extent0 = float(s0.x.max() - s0.x.min())
     extent1 = float(final.x.max() - final.x.min())
     assert extent1 > 1.3 * extent0
     rho0, rho1 = s0.mass / s0.volume, final.mass / final.volume
     np.testing.assert_allclose(np.asarray(rho1), np.asarray(rho0), rtol=1e-9)
-    theta = jaxmpm.transfer.scatter_weighted(jaxmpm.shapes.stencil(scene, final.x), None, final.volume[:, None], 1, scene.grid.n_nodes)[0, :, 0] / scene.grid.h
-    assert float(theta.max()) < 0.85                     # was 1 inside the block
+    theta = (
+        jaxmpm.transfer.scatter_weighted(
+            jaxmpm.shapes.stencil(scene, final.x), None, final.volume[:, None], 1, scene.grid.n_nodes
+        )[0, :, 0]
+        / scene.grid.h
+    )
+    assert float(theta.max()) < 0.85  # was 1 inside the block
 
 
 @pytest.mark.parametrize("state", ["fragmented", "intact"])
 def test_precompressed_block_in_vacuum(state):
     """Fragmented: unloads to zero pressure within a few acoustic times of a cell, the released
     elastic energy stays as heat (kinetic + internal conserved). Intact: elastic response."""
-    scene = block(c_h=0.01, t_end=6 * (1.0 / 50) / 1000.0)        # 6 tau, tau = h / c
+    scene = block(c_h=0.01, t_end=6 * (1.0 / 50) / 1000.0)  # 6 tau, tau = h / c
     params, s0 = prepared(scene, 1.0 if state == "fragmented" else 0.0, P0)
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
     p = -np.asarray(final.stress[:, 0, 0])
@@ -74,7 +92,7 @@ def test_precompressed_block_in_vacuum(state):
         assert float(jaxmpm.diagnostics.kinetic_energy(final)) < 1e-6 * e[0]
         np.testing.assert_allclose(e, e[0], rtol=0.02)
     else:
-        assert np.abs(p).max() > 0.5 * P0            # the interior still holds its pressure
+        assert np.abs(p).max() > 0.5 * P0  # the interior still holds its pressure
         assert float(jaxmpm.diagnostics.kinetic_energy(final)) > 0.05 * e[0]
 
 
@@ -87,18 +105,29 @@ def test_fragmented_block_in_pressurised_gas_relaxes_to_the_gas_pressure(gas_fie
     p_gas, K_gas = 1.0e6, 1.0e7
     box = Box((0.0,), (1.0,))
     walls = jaxmpm.Boundary(faces=(("x_lo", "fixed"), ("x_hi", "fixed")))
-    scene = Scene(grid=Grid(cells=(20,), h=0.05), materials=(ROCK, gas), boundary=walls, shape="linear",
-                  phases=(Phase("debris", "rock", box, field=0, fraction=0.5),
-                          Phase("gas", "gas", box, field=gas_field, fraction=0.5)),
-                  drag=1.0 if gas_field else None, c_h=0.01, t_end=10 * 0.05 / 1000.0, n_out=5)
+    scene = Scene(
+        grid=Grid(cells=(20,), h=0.05),
+        materials=(ROCK, gas),
+        boundary=walls,
+        shape="linear",
+        phases=(
+            Phase("debris", "rock", box, field=0, fraction=0.5),
+            Phase("gas", "gas", box, field=gas_field, fraction=0.5),
+        ),
+        drag=1.0 if gas_field else None,
+        c_h=0.01,
+        t_end=10 * 0.05 / 1000.0,
+        n_out=5,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     sl = jaxmpm.state.phase_slices(scene)
     J = 1 - p_gas / K_gas
     F = s0.F.at[sl[1]].set(J)
     stress = s0.stress.at[sl[1]].set(-p_gas)
-    s0 = dataclasses.replace(s0, F=F, stress=stress, volume=s0.volume.at[sl[1]].multiply(J),
-                             eps_ps=s0.eps_ps.at[sl[0]].set(1.0))
+    s0 = dataclasses.replace(
+        s0, F=F, stress=stress, volume=s0.volume.at[sl[1]].multiply(J), eps_ps=s0.eps_ps.at[sl[0]].set(1.0)
+    )
     final, _ = jaxmpm.simulate(scene, params, s0, progress=False)
     p_debris = -np.asarray(final.stress[sl[0], 0, 0])
     np.testing.assert_allclose(p_debris, p_gas, rtol=0.02)
@@ -110,8 +139,12 @@ def test_e8_relaxation_rate_is_the_formula_with_its_strain_clipped_at_one_e_fold
     (1 - exp(-dt / tau)) / dt, by hand from the model's K and c; where |p - p_amb| / K exceeds
     EQUILIBRATING_STRAIN_MAX = 1 (here 7.5 either way, in vacuum) the strain is clipped to +-1,
     so the volume changes by at most one e-fold per relaxation time."""
-    from jaxmpm.constitutive import (EQUILIBRATING_STRAIN_MAX, bulk_modulus_and_wave_speed, closure_alpha,
-                                     material_volume_rate)
+    from jaxmpm.constitutive import (
+        EQUILIBRATING_STRAIN_MAX,
+        bulk_modulus_and_wave_speed,
+        closure_alpha,
+        material_volume_rate,
+    )
     from jaxmpm.step import Layout
 
     scene = block(c_h=0.01)
@@ -126,12 +159,12 @@ def test_e8_relaxation_rate_is_the_formula_with_its_strain_clipped_at_one_e_fold
     assert (np.abs(strain) > EQUILIBRATING_STRAIN_MAX).all() == clipped
     expected = (1 - alpha) * np.clip(strain, -1.0, 1.0) * (1 - np.exp(-dt / tau)) / dt
     np.testing.assert_allclose(rate, expected, rtol=1e-12)
-    assert float(alpha.max()) < 1e-12 and (dt / tau > 0.5).all()     # fragmented; the exponential matters
+    assert float(alpha.max()) < 1e-12 and (dt / tau > 0.5).all()  # fragmented; the exponential matters
 
 
 def test_alpha_is_smooth_and_grad_wrt_c_h_matches_finite_difference():
     scene = block(c_h=0.05, t_end=4e-5)
-    params, s0 = prepared(scene, 0.05, P0)              # eps_ps = C_h: alpha depends on C_h
+    params, s0 = prepared(scene, 0.05, P0)  # eps_ps = C_h: alpha depends on C_h
     n = jaxmpm.plan_steps(scene, params, s0, scene.t_end)
 
     def kinetic(c_h):
@@ -142,9 +175,11 @@ def test_alpha_is_smooth_and_grad_wrt_c_h_matches_finite_difference():
     g = float(jax.grad(kinetic)(jnp.asarray(0.05)))
     fd = float((f(0.05 * (1 + 1e-6)) - f(0.05 * (1 - 1e-6))) / (2e-6 * 0.05))
     np.testing.assert_allclose(g, fd, rtol=1e-5)
-    assert g > 0                                         # larger C_h: more intact, more elastic push
+    assert g > 0  # larger C_h: more intact, more elastic push
     params0, s00 = prepared(scene, 0.0, P0)
-    g0 = jax.grad(lambda c: jaxmpm.simulate(scene, dataclasses.replace(params0, c_h=c), s00, n_steps=n)[0].x.sum())(0.05)
+    g0 = jax.grad(lambda c: jaxmpm.simulate(scene, dataclasses.replace(params0, c_h=c), s00, n_steps=n)[0].x.sum())(
+        0.05
+    )
     assert np.isfinite(float(g0))
 
 
@@ -171,10 +206,18 @@ def test_the_per_phase_ambient_adds_one_scatter_only_where_a_field_holds_several
     gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=10.0, K=1.0e7)
 
     def scene(gas_field, c_h):
-        return Scene(grid=Grid(cells=(20,), h=0.05), materials=(ROCK, gas), shape="linear",
-                     phases=(Phase("debris", "rock", Box((0.0,), (1.0,)), field=0, fraction=0.5),
-                             Phase("gas", "gas", Box((0.0,), (1.0,)), field=gas_field, fraction=0.5)),
-                     drag=1.0 if gas_field else None, c_h=c_h, t_end=1e-4)
+        return Scene(
+            grid=Grid(cells=(20,), h=0.05),
+            materials=(ROCK, gas),
+            shape="linear",
+            phases=(
+                Phase("debris", "rock", Box((0.0,), (1.0,)), field=0, fraction=0.5),
+                Phase("gas", "gas", Box((0.0,), (1.0,)), field=gas_field, fraction=0.5),
+            ),
+            drag=1.0 if gas_field else None,
+            c_h=c_h,
+            t_end=1e-4,
+        )
 
     for gas_field, extra in ((1, 0), (0, 1)):
         with_closure, without = _scatter_adds(scene(gas_field, 0.01)), _scatter_adds(scene(gas_field, None))
@@ -195,10 +238,19 @@ AL_NO_FAILURE = jaxmpm.materials.library_material("al2024", "mie_gruneisen+johns
 def planar_impact(c_h, fragmentation="tensile", v0=2000.0, t_end=1.2e-6):
     """1D: a 10 mm al2024 flyer (Mie-Grueneisen, Johnson-Cook, no failure part) at v0 on a 20 mm
     target at rest; until t_end = 1.2 us the shocks have not reached a free face (Us ~ 6.7 km/s)."""
-    return Scene(grid=Grid(cells=(240,), h=0.03 / 240), materials=(AL_NO_FAILURE,),
-                 phases=(Phase("flyer", "al2024", Box((0.0,), (0.01,)), velocity=(v0,)),
-                         Phase("target", "al2024", Box((0.01,), (0.03,)))),
-                 artificial_viscosity=(0.5, 2.0), c_h=c_h, fragmentation=fragmentation, t_end=t_end, n_out=4)
+    return Scene(
+        grid=Grid(cells=(240,), h=0.03 / 240),
+        materials=(AL_NO_FAILURE,),
+        phases=(
+            Phase("flyer", "al2024", Box((0.0,), (0.01,)), velocity=(v0,)),
+            Phase("target", "al2024", Box((0.01,), (0.03,))),
+        ),
+        artificial_viscosity=(0.5, 2.0),
+        c_h=c_h,
+        fragmentation=fragmentation,
+        t_end=t_end,
+        n_out=4,
+    )
 
 
 def contact_pressure(scene, state):
@@ -219,15 +271,17 @@ def test_a_shock_keeps_its_pressure_exactly_for_every_c_h():
     s0 = jaxmpm.init_state(ref_scene, params0)
     ref, ref_hist = jaxmpm.simulate(ref_scene, params0, s0, progress=False)
     rho0, up = 2785.0, 1000.0
-    hugoniot = rho0 * (5328.0 + 1.338 * up) * up                     # rho0 Us up, Pa
+    hugoniot = rho0 * (5328.0 + 1.338 * up) * up  # rho0 Us up, Pa
     assert contact_pressure(ref_scene, ref) == pytest.approx(hugoniot, rel=0.03)
-    assert float(ref.eps_ps.max()) > 0.02                             # the shock did flow plastically
+    assert float(ref.eps_ps.max()) > 0.02  # the shock did flow plastically
     scene = planar_impact(0.15, "tensile")
     params = jaxmpm.default_params(scene)
     for c_h in (0.02, 0.15, 0.5, 1.0):
         final, hist = jaxmpm.simulate(scene, dataclasses.replace(params, c_h=jnp.asarray(c_h)), s0, progress=False)
         for name in ("x", "v", "stress", "pressure", "volume", "energy", "eps_ps"):
-            np.testing.assert_array_equal(np.asarray(getattr(hist, name)), np.asarray(getattr(ref_hist, name)), err_msg=name)
+            np.testing.assert_array_equal(
+                np.asarray(getattr(hist, name)), np.asarray(getattr(ref_hist, name)), err_msg=name
+            )
         assert float(final.damage.max()) == 0.0
     seed_scene = planar_impact(0.02, "plastic")
     seed, _ = jaxmpm.simulate(seed_scene, jaxmpm.default_params(seed_scene), s0, progress=False)
@@ -236,7 +290,7 @@ def test_a_shock_keeps_its_pressure_exactly_for_every_c_h():
 
 # a 1D bar pulled apart: linear EOS, elastic-perfectly plastic J2 (uniaxial strain: yields in tension)
 BAR = jaxmpm.Material.make("bar", "linear+von_mises", rho0=2700.0, K=70e9, G=26e9, Y=300e6)
-PULL = 1.0e5        # 1/s, the initial velocity gradient
+PULL = 1.0e5  # 1/s, the initial velocity gradient
 BAR_CELLS, BAR_H = 240, 0.06 / 240
 
 
@@ -244,9 +298,15 @@ def pulled_bar(c_h, fragmentation="tensile", t_end=0.5e-6):
     """A 20 mm bar in the middle of a 60 mm grid, v = PULL (x - x_c): it expands, goes into tension
     and yields (uniaxial strain) at t_y = Y / (2 G PULL) = 58 ns; the release from its free ends
     reaches its middle third after 0.5 us."""
-    return Scene(grid=Grid(cells=(BAR_CELLS,), h=BAR_H), materials=(BAR,),
-                 phases=(Phase("bar", "bar", Box((0.02,), (0.04,)), velocity=(0.0,)),),
-                 c_h=c_h, fragmentation=fragmentation, t_end=t_end, n_out=10)
+    return Scene(
+        grid=Grid(cells=(BAR_CELLS,), h=BAR_H),
+        materials=(BAR,),
+        phases=(Phase("bar", "bar", Box((0.02,), (0.04,)), velocity=(0.0,)),),
+        c_h=c_h,
+        fragmentation=fragmentation,
+        t_end=t_end,
+        n_out=10,
+    )
 
 
 def pulled_state(scene):
@@ -315,21 +375,22 @@ def test_a_bar_pulled_in_tension_fragments_on_the_time_scale_c_h_sets():
         frames = [jax.tree.map(lambda a: a[k], hist) for k in range(len(t_out))]
         p = np.array([np.asarray(f.pressure)[mid].mean() for f in frames])
         D = np.array([np.asarray(f.damage)[mid].mean() for f in frames])
-        ap = np.array([np.asarray(jaxmpm.constitutive.pressure_factor(lay, params, f) * f.pressure)[mid].mean()
-                       for f in frames])
+        ap = np.array(
+            [np.asarray(jaxmpm.constitutive.pressure_factor(lay, params, f) * f.pressure)[mid].mean() for f in frames]
+        )
         ode = closure_ode(c_h, t_out)
-        np.testing.assert_allclose(D, ode[:, 1], atol=0.005)                      # measured <= 0.001
-        np.testing.assert_allclose(ap, ode[:, 2], atol=0.04 * np.abs(ode[:, 0]).max())   # measured <= 0.026
+        np.testing.assert_allclose(D, ode[:, 1], atol=0.005)  # measured <= 0.001
+        np.testing.assert_allclose(ap, ode[:, 2], atol=0.04 * np.abs(ode[:, 0]).max())  # measured <= 0.026
         results[c_h] = D
-        assert D[-1] > 0.98                                       # fragmented
-        assert abs(ap[-1]) < 0.01 * abs(p).max()                  # and its tension has relaxed
+        assert D[-1] > 0.98  # fragmented
+        assert abs(ap[-1]) < 0.01 * abs(p).max()  # and its tension has relaxed
     # the time scale: D(t) of the larger C_h lags (0.23 against 0.60 at 0.1 us)
     assert (results[0.012][1:-1] < results[0.004][1:-1] - 0.2).any()
     scene = pulled_bar(None)
     params, s0 = pulled_state(scene)
     final, _ = jaxmpm.simulate(scene, params, s0, progress=False)
     mid = np.abs(np.asarray(s0.x[:, 0]) - 0.03) < 0.003
-    assert np.asarray(final.pressure)[mid].mean() < -0.5e9          # intact: still in tension
+    assert np.asarray(final.pressure)[mid].mean() < -0.5e9  # intact: still in tension
 
 
 def test_tensile_closure_conserves_momentum_and_energy_in_a_plane_strain_impact():
@@ -337,10 +398,20 @@ def test_tensile_closure_conserves_momentum_and_energy_in_a_plane_strain_impact(
     'tensile': finite, momentum exact, kinetic + internal energy within 1% (the pressure's factor
     a enters the grid force and the energy equation alike, E8); the release behind the free faces
     fragments part of the material (D > 0.5) while D stays within [0, 1]."""
-    scene = Scene(grid=Grid(cells=(40, 40), h=0.5e-3, origin=(0.0, -0.004)), materials=(AL_NO_FAILURE,),
-                  phases=(Phase("a", "al2024", Box((0.002, 0.002), (0.01, 0.01)), velocity=(1500.0, 0.0)),
-                          Phase("b", "al2024", Box((0.01, 0.003), (0.018, 0.009)), velocity=(-500.0, 0.0))),
-                  artificial_viscosity=(0.5, 2.0), c_h=0.02, fragmentation="tensile", cfl=0.3, t_end=3e-6, n_out=3)
+    scene = Scene(
+        grid=Grid(cells=(40, 40), h=0.5e-3, origin=(0.0, -0.004)),
+        materials=(AL_NO_FAILURE,),
+        phases=(
+            Phase("a", "al2024", Box((0.002, 0.002), (0.01, 0.01)), velocity=(1500.0, 0.0)),
+            Phase("b", "al2024", Box((0.01, 0.003), (0.018, 0.009)), velocity=(-500.0, 0.0)),
+        ),
+        artificial_viscosity=(0.5, 2.0),
+        c_h=0.02,
+        fragmentation="tensile",
+        cfl=0.3,
+        t_end=3e-6,
+        n_out=3,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
@@ -369,4 +440,4 @@ def test_tensile_closure_gradient_wrt_c_h_matches_central_differences():
     g = float(jax.grad(kinetic)(jnp.asarray(0.008)))
     fd = float((f(0.008 * (1 + 1e-6)) - f(0.008 * (1 - 1e-6))) / (2e-6 * 0.008))
     np.testing.assert_allclose(g, fd, rtol=1e-5)
-    assert g < 0        # larger C_h: fragments later, its tension holds the bar back longer
+    assert g < 0  # larger C_h: fragments later, its tension holds the bar back longer

@@ -1,6 +1,7 @@
 """Cell crossing: a soft 1D column settling under its own weight (Bardenhagen & Kober 2004 style).
 Exact static stress in the reference position: sigma(X) = -rho g (L - X). DDMP removes the
 cell-crossing noise of standard MPM."""
+
 import numpy as np
 
 import jaxmpm
@@ -22,8 +23,10 @@ def stress_rms_error(shape):
 def test_ddmp_stress_error_5x_below_linear_mpm():
     e_ddmp, crossed = stress_rms_error("ddmp")
     e_lin, _ = stress_rms_error("linear")
-    print(f"column: RMS stress error / rho g L: DDMP {e_ddmp:.4f}, linear {e_lin:.4f}, ratio {e_lin / e_ddmp:.0f}; "
-          f"top particle crossed {crossed:.2f} cells")
+    print(
+        f"column: RMS stress error / rho g L: DDMP {e_ddmp:.4f}, linear {e_lin:.4f}, ratio {e_lin / e_ddmp:.0f}; "
+        f"top particle crossed {crossed:.2f} cells"
+    )
     assert crossed > 2.0
     assert e_ddmp < 0.02
     assert e_lin >= 5 * e_ddmp

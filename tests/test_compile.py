@@ -1,4 +1,5 @@
 """jaxmpm.jit's compiler options and the two forms of the contractions (compile.py)."""
+
 import os
 import subprocess
 import sys
@@ -16,8 +17,10 @@ def _form_value(x):
     return x * (2.0 if native_reductions() else 3.0)
 
 
-@pytest.mark.skipif(not jaxmpm.compile._USER_CONTEXTS, reason="a jax without user contexts: jit compiles with "
-                    "XLA's defaults and traces no reduction form")
+@pytest.mark.skipif(
+    not jaxmpm.compile._USER_CONTEXTS,
+    reason="a jax without user contexts: jit compiles with XLA's defaults and traces no reduction form",
+)
 def test_caches_of_traces_tell_the_two_forms_apart():
     """A trace made in one form is never reused in the other: not by one jax.jit, nor by the
     caches JAX keys on the traced function (jax.checkpoint's), nor by jaxmpm.jit's staged call."""
@@ -56,8 +59,9 @@ README_GRADIENT = textwrap.dedent("""
 
 def _gradients(order):
     env = {k: v for k, v in os.environ.items() if k != "JAXMPM_XLA_DEFAULTS"}
-    r = subprocess.run([sys.executable, "-c", README_GRADIENT, order], capture_output=True, text=True,
-                       timeout=600, env=env)
+    r = subprocess.run(
+        [sys.executable, "-c", README_GRADIENT, order], capture_output=True, text=True, timeout=600, env=env
+    )
     assert r.returncode == 0, f"order {order!r}: exit status {r.returncode}\n{r.stderr[-3000:]}"
     return dict(line.split() for line in r.stdout.splitlines())
 
@@ -69,7 +73,7 @@ def test_readme_gradient_compiled_and_eager_in_either_order():
     exit 0 with the same gradients (the eager grad after the compiled one used to crash in
     YNNPACK, which took the reductions traced for jaxmpm.jit)."""
     first, second = _gradients("je"), _gradients("ej")
-    assert first == second          # each form's gradient does not depend on the order
+    assert first == second  # each form's gradient does not depend on the order
     g_jit, g_eager = float(first["j"]), float(first["e"])
     assert abs(g_jit) > 1e-10
     # the two forms round differently in float32 (reductions against unrolled sums): a few ulps

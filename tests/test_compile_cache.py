@@ -1,6 +1,7 @@
 """The persistent compilation cache (jaxmpm/compile_cache.py): a second `jaxmpm run` of the same
 scene reads its compiled programs back instead of compiling them, and the cache stays off where
 asked."""
+
 import os
 import subprocess
 import sys
@@ -20,8 +21,14 @@ def _run(tmp_path, out, cache, *extra, **env_extra):
     by JAXMPM_CACHE_DIR and JAX's compile log on (it names every persistent-cache hit)."""
     env = {k: v for k, v in os.environ.items() if k != compile_cache.ENV_OFF}
     env.update(JAXMPM_CACHE_DIR=str(cache), JAX_LOG_COMPILES="1", PYTHONPATH=str(ROOT), **env_extra)
-    p = subprocess.run([sys.executable, "-m", "jaxmpm", "run", "--out", str(tmp_path / out), *TINY, *extra],
-                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    p = subprocess.run(
+        [sys.executable, "-m", "jaxmpm", "run", "--out", str(tmp_path / out), *TINY, *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     return p.stderr
 
@@ -41,8 +48,8 @@ def test_a_second_run_reads_the_compiled_step_back(tmp_path):
     assert HIT not in first
     second = _run(tmp_path, "b", cache, **{compile_cache.ENV_MIN: "0"})
     hits = [line for line in second.splitlines() if HIT in line]
-    assert len(hits) >= len(written), (written, hits)      # every program the first run wrote is read back
-    assert _entries(cache) == written                       # and none compiled afresh and written
+    assert len(hits) >= len(written), (written, hits)  # every program the first run wrote is read back
+    assert _entries(cache) == written  # and none compiled afresh and written
     assert (tmp_path / "b").is_dir()
 
 

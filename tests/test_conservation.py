@@ -1,5 +1,6 @@
 """Conservation: total mass exact; total linear momentum to 1e-12 relative without external
 forces, for a free-floating pre-compressed body (no force may land on a massless node)."""
+
 import dataclasses
 
 import jax.numpy as jnp
@@ -16,18 +17,34 @@ def _body(dim, shape, transfer="musl"):
     geo = {1: Box((0.33,), (0.71,)), 2: Sphere((0.52, 0.47), 0.21), 3: Box((0.31, 0.34, 0.29), (0.66, 0.62, 0.6))}[dim]
     cells = {1: (40,), 2: (20, 20), 3: (10, 10, 10)}[dim]
     vel = (3.0, -1.0, 2.0)[:dim]
-    return Scene(grid=Grid(cells=cells, h=1.0 / cells[0]), phases=(Phase("body", "m", geo, velocity=vel),),
-                 materials=(mat,), shape=shape, transfer=transfer, t_end=2e-3, n_out=1)
+    return Scene(
+        grid=Grid(cells=cells, h=1.0 / cells[0]),
+        phases=(Phase("body", "m", geo, velocity=vel),),
+        materials=(mat,),
+        shape=shape,
+        transfer=transfer,
+        t_end=2e-3,
+        n_out=1,
+    )
 
 
-@pytest.mark.parametrize("dim,shape,transfer", [(1, "ddmp", "musl"), (2, "ddmp", "musl"), (3, "ddmp", "musl"),
-                                                (2, "linear", "musl"), (2, "ddmp", "seed"), (2, "bspline2", "apic")])
+@pytest.mark.parametrize(
+    "dim,shape,transfer",
+    [
+        (1, "ddmp", "musl"),
+        (2, "ddmp", "musl"),
+        (3, "ddmp", "musl"),
+        (2, "linear", "musl"),
+        (2, "ddmp", "seed"),
+        (2, "bspline2", "apic"),
+    ],
+)
 def test_mass_exact_momentum_1e12(dim, shape, transfer):
     scene = _body(dim, shape, transfer)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     eye = jnp.eye(dim)
-    s0 = dataclasses.replace(s0, F=jnp.broadcast_to(0.97 * eye, s0.F.shape))        # pre-compressed 3%
+    s0 = dataclasses.replace(s0, F=jnp.broadcast_to(0.97 * eye, s0.F.shape))  # pre-compressed 3%
     s0 = dataclasses.replace(s0, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["body"], s0.F))
     final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
     p0 = np.asarray(jaxmpm.diagnostics.momentum(s0))

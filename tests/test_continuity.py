@@ -5,6 +5,7 @@ fields' motion closes (the exact transpose of the interface forces with respect 
 pressures, jaxmpm.multifield.continuity_volume_rate), so the interface forces' work is stored in the
 phases' compression and given back, not created; the common pressure couples the fields in
 compression only, so bodies that rebound separate. Float64 (conftest)."""
+
 import dataclasses
 
 import jax
@@ -29,10 +30,18 @@ def settling_column(continuity, cells=40, drag=1.0):
     keeps the energy, which the viscosity would damp (with it the column's largest speed after
     20,000 steps is 0.096 m/s, layering and Theta unchanged)."""
     walls = jaxmpm.Boundary(faces=(("x_lo", "fixed"), ("x_hi", "fixed")))
-    return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), boundary=walls, gravity=(-G,),
-                 phases=(Phase("water", "water", Box((0.0,), (0.5,)), field=0),
-                         Phase("air", "air", Box((0.5,), (1.0,)), field=1)),
-                 drag=drag, continuity=continuity, artificial_viscosity=(0.0, 0.0))
+    return Scene(
+        grid=Grid(cells=(cells,), h=1.0 / cells),
+        boundary=walls,
+        gravity=(-G,),
+        phases=(
+            Phase("water", "water", Box((0.0,), (0.5,)), field=0),
+            Phase("air", "air", Box((0.5,), (1.0,)), field=1),
+        ),
+        drag=drag,
+        continuity=continuity,
+        artificial_viscosity=(0.0, 0.0),
+    )
 
 
 def run_column(scene, steps, chunks):
@@ -61,12 +70,12 @@ def test_settling_column_stays_layered_with_theta_one_and_energy_conserved():
     mgH = float(jnp.sum(states[0].mass)) * G * 1.0
     for s in states[1:]:
         assert bool(jnp.all(jnp.isfinite(s.v)))
-        assert float(jnp.min(s.x[air, 0])) > 0.5 - h                  # no air below the interface
+        assert float(jnp.min(s.x[air, 0])) > 0.5 - h  # no air below the interface
         Theta = np.asarray(jaxmpm.diagnostics.volume_fractions(scene, s)[1])
-        np.testing.assert_allclose(Theta[1:-1], 1.0, atol=0.01)        # interior nodes, interface included
-    assert float(jnp.max(jnp.abs(states[-1].v))) > 0.1                 # the column is moving (not a trivial rest)
-    assert np.abs(E - E[0]).max() < 0.01 * abs(E[0])                   # the issue's measure
-    assert np.abs(E - E[0]).max() < 0.01 * mgH                         # and the stricter one
+        np.testing.assert_allclose(Theta[1:-1], 1.0, atol=0.01)  # interior nodes, interface included
+    assert float(jnp.max(jnp.abs(states[-1].v))) > 0.1  # the column is moving (not a trivial rest)
+    assert np.abs(E - E[0]).max() < 0.01 * abs(E[0])  # the issue's measure
+    assert np.abs(E - E[0]).max() < 0.01 * mgH  # and the stricter one
 
 
 def test_without_the_continuity_form_the_air_falls_into_the_water():
@@ -76,8 +85,12 @@ def test_without_the_continuity_form_the_air_falls_into_the_water():
     scene = settling_column("off")
     _, states = run_column(scene, 5_000, 5)
     air = phase_slices(scene)[1]
-    broke = [not bool(jnp.all(jnp.isfinite(s.x))) or float(jnp.min(s.x[air, 0])) < 0.5 - scene.grid.h
-             or float(jnp.max(jnp.abs(s.v))) > 100.0 for s in states[1:]]
+    broke = [
+        not bool(jnp.all(jnp.isfinite(s.x)))
+        or float(jnp.min(s.x[air, 0])) < 0.5 - scene.grid.h
+        or float(jnp.max(jnp.abs(s.v))) > 100.0
+        for s in states[1:]
+    ]
     assert any(broke)
 
 
@@ -90,8 +103,8 @@ def test_low_drag_impact_rebounds_without_passing_through_and_keeps_its_energy()
     scene = two_blocks(1.0, "transport")
     hist, E, P, gap, va, vb = run_blocks(scene)
     np.testing.assert_allclose(P, P[0], rtol=1e-12)
-    assert gap.min() > 0                                  # never interpenetrate
-    assert va[-1] < vb[-1] and gap[-1] > gap[len(gap) // 2] + 2 * scene.grid.h    # they rebound and part
+    assert gap.min() > 0  # never interpenetrate
+    assert va[-1] < vb[-1] and gap[-1] > gap[len(gap) // 2] + 2 * scene.grid.h  # they rebound and part
     assert abs(va[-1] - (-50.0)) < 0.05 * 200 and abs(vb[-1] - 150.0) < 0.05 * 200
     assert np.all(E / E[0] - 1 < 0.005) and E[-1] / E[0] - 1 > -0.05
 
@@ -124,8 +137,12 @@ def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     v = jnp.asarray(np.random.default_rng(0).normal(size=I.shape)) * 100.0
     rate = volume_rate(v)
     # the step's rate (one linearisation with I) is the standalone transpose
-    np.testing.assert_allclose(np.asarray(rate), np.asarray(M.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, v)),
-                               rtol=1e-12, atol=1e-12 * float(jnp.abs(rate).max()))
+    np.testing.assert_allclose(
+        np.asarray(rate),
+        np.asarray(M.continuity_volume_rate(lay, params, st, beta, s, g, dg, m_min, v)),
+        rtol=1e-12,
+        atol=1e-12 * float(jnp.abs(rate).max()),
+    )
     p_part, _ = M.phase_pressure_and_compressibility(lay, params, s)
     power = float(jnp.sum(v * I))
     stored = float(jnp.sum(p_part * s.volume * rate))
@@ -138,14 +155,18 @@ def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
 
 
 def test_continuity_option_validation_and_default():
-    assert settling_column("auto").continuity_form == "transport"       # on wherever it can be
+    assert settling_column("auto").continuity_form == "transport"  # on wherever it can be
     assert two_blocks(1.0, "auto").continuity_form == "transport"
     assert two_blocks(1.0, "auto").replace(interface_forces=False).continuity_form == "off"
     assert two_blocks(1.0, "auto").replace(transfer="seed").continuity_form == "off"
     assert two_blocks(None, "auto", fields=1).continuity_form == "off"
-    with pytest.raises(ValueError, match=r"effects\.continuity = 'transport' is invalid: allowed 'auto' \| 'off' unless"):
+    with pytest.raises(
+        ValueError, match=r"effects\.continuity = 'transport' is invalid: allowed 'auto' \| 'off' unless"
+    ):
         two_blocks(1.0, "transport").replace(interface_forces=False)
-    with pytest.raises(ValueError, match=r"effects\.continuity = 'on' is invalid: allowed 'auto' \| 'off' \| 'transport'"):
+    with pytest.raises(
+        ValueError, match=r"effects\.continuity = 'on' is invalid: allowed 'auto' \| 'off' \| 'transport'"
+    ):
         settling_column("on")
     back = jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(two_blocks(1.0, "off")))
     assert back.continuity == "off" and back == two_blocks(1.0, "off")
@@ -167,7 +188,7 @@ def test_two_field_debris_cloud_front_stays_below_the_impact_speed_with_the_cont
         s0 = jaxmpm.init_state(scene, params)
         final, hist = jaxmpm.simulate(scene, params, s0, progress=False)
         E = [float(jaxmpm.diagnostics.total_energy(scene, params, s)) for s in (s0, final)]
-        v = -np.asarray(feature_velocities(scene, hist, first=len(hist.t) // 2))       # points 1, 2, 4 (m/s, down)
+        v = -np.asarray(feature_velocities(scene, hist, first=len(hist.t) // 2))  # points 1, 2, 4 (m/s, down)
         out[continuity] = (v, E[1] / E[0] - 1)
     print(out)
     speed = 6710.0
@@ -183,10 +204,19 @@ def test_grad_through_the_continuity_form_wrt_drag_and_c_h_matches_finite_differ
     eps_ps = C_h at the start so alpha depends on it); d(kinetic energy)/d(C_d, C_h) against
     central differences."""
     rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
-    scene = Scene(grid=Grid(cells=(60,), h=1.0 / 60), materials=(rock,),
-                  phases=(Phase("a", "rock", Box((0.2,), (0.45,)), velocity=(40.0,), field=0),
-                          Phase("b", "rock", Box((0.47,), (0.7,)), field=1)),
-                  drag=10.0, c_h=0.05, continuity="transport", t_end=3e-4, n_out=1)
+    scene = Scene(
+        grid=Grid(cells=(60,), h=1.0 / 60),
+        materials=(rock,),
+        phases=(
+            Phase("a", "rock", Box((0.2,), (0.45,)), velocity=(40.0,), field=0),
+            Phase("b", "rock", Box((0.47,), (0.7,)), field=1),
+        ),
+        drag=10.0,
+        c_h=0.05,
+        continuity="transport",
+        t_end=3e-4,
+        n_out=1,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     s0 = dataclasses.replace(s0, eps_ps=jnp.full_like(s0.eps_ps, 0.05))
@@ -210,6 +240,7 @@ def test_grad_through_the_continuity_form_wrt_drag_and_c_h_matches_finite_differ
 def test_continuity_off_traces_no_transpose():
     """The continuity form adds the transpose of the interface forces to the step (scatters of the
     transposed gathers); with continuity = 'off' none of it is traced."""
+
     def scatters(scene):
         params = jaxmpm.default_params(scene)
         state = jaxmpm.init_state(scene, params)
@@ -220,7 +251,9 @@ def test_continuity_off_traces_no_transpose():
     assert on > off
 
 
-@pytest.mark.parametrize("axisymmetric", [pytest.param(False, marks=pytest.mark.slow), True])   # True holds False's terms
+@pytest.mark.parametrize(
+    "axisymmetric", [pytest.param(False, marks=pytest.mark.slow), True]
+)  # True holds False's terms
 def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetric):
     """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts, contracted
     by ddmp.nodal_interface_force) gives the nodal forces of the general stress parts of p I to
@@ -229,8 +262,11 @@ def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetr
     from jaxmpm import step as S
     from jaxmpm.shapes import ddmp_beta, stencil
 
-    scene = (jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2) if axisymmetric
-             else two_blocks(1.0, "transport", cells=40))
+    scene = (
+        jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
+        if axisymmetric
+        else two_blocks(1.0, "transport", cells=40)
+    )
     params = jaxmpm.default_params(scene)
     s = jaxmpm.init_state(scene, params)
     lay = S.Layout.of(scene)
@@ -241,13 +277,17 @@ def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetr
     p = jnp.asarray(np.random.default_rng(1).normal(size=s.mass.shape)) * 1e9
     radius = nodal.particle_radius(lay, s)
     iso = p[:, None, None] * jnp.eye(scene.material_dim, dtype=p.dtype)
-    wide = nodal.nodal_stress_force(lay, dg, nodal.scatter_named(lay, st, nodal.stress_parts(st, s.volume, beta, iso, radius)))
+    wide = nodal.nodal_stress_force(
+        lay, dg, nodal.scatter_named(lay, st, nodal.stress_parts(st, s.volume, beta, iso, radius))
+    )
     g_p = nodal.scatter_named(lay, st, nodal.pressure_parts(st, s.volume, beta, p, radius))
     grid = scene.grid
-    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes)              # no common pressure: its term is 0
+    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes)  # no common pressure: its term is 0
     narrow = g_p["f"] + ddmp.nodal_interface_force(grid, dg, p_hat, jnp.zeros(grid.nodes)).reshape(g_p["f"].shape)
     assert float(jnp.abs(wide).max()) > 0
-    np.testing.assert_allclose(np.asarray(narrow), np.asarray(wide), rtol=1e-12, atol=1e-12 * float(jnp.abs(wide).max()))
+    np.testing.assert_allclose(
+        np.asarray(narrow), np.asarray(wide), rtol=1e-12, atol=1e-12 * float(jnp.abs(wide).max())
+    )
 
 
 # ------------------------------------------------------------------ contact onset
@@ -266,7 +306,7 @@ def test_contact_onset_is_max_outside_its_band_and_smooth_inside():
         below, above = ds(jnp.array([edge - 1e-6 * p_on])), ds(jnp.array([edge + 1e-6 * p_on]))
         assert abs(float(below[0]) - float(above[0])) < 1e-5, (edge, below, above)
     assert float(ds(jnp.array([0.0]))[0]) == pytest.approx(1.0)
-    assert float(ds(jnp.array([-1e-12]))[0]) == pytest.approx(1.0, abs=1e-12)     # round-off of zero: in contact
+    assert float(ds(jnp.array([-1e-12]))[0]) == pytest.approx(1.0, abs=1e-12)  # round-off of zero: in contact
     band = jnp.linspace(-p_on, 0.0, 1001)
     assert -0.26 * p_on <= float(jnp.min(contact_onset(band, p_on))) < -0.25 * p_on
     defect = band * ds(band) - contact_onset(band, p_on)
@@ -291,23 +331,23 @@ def test_a_one_ulp_change_stays_one_ulp_when_the_fields_meet():
     by luck elsewhere, not here). With the smooth onset it stays below 1e-9 m/s over 150 steps
     (measured 1e-11 m/s over 300)."""
     dt = coarse_cloud_dt()
-    scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=300 * dt)   # grad_cost's scene
+    scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=300 * dt)  # grad_cost's scene
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     step = jaxmpm.make_step(scene)
     run = jaxmpm.jit(lambda p, s: jax.lax.scan(lambda c, _: (step(p, c, jnp.inf, dt), None), s, None, length=10)[0])
     a = s0
-    b = dataclasses.replace(s0, v=s0.v.at[0, 1].multiply(1 + 1e-15))          # 7 units in the last place
+    b = dataclasses.replace(s0, v=s0.v.at[0, 1].multiply(1 + 1e-15))  # 7 units in the last place
     assert 0 < float(jnp.max(jnp.abs(b.v - a.v))) < 1e-11
     worst = 0.0
     for _ in range(15):
         a, b = run(params, a), run(params, b)
         worst = max(worst, float(jnp.max(jnp.abs(a.v - b.v))))
-    assert float(jnp.max(jnp.abs(a.stress))) > 1e9                 # the sphere has hit the plate
+    assert float(jnp.max(jnp.abs(a.stress))) > 1e9  # the sphere has hit the plate
     assert worst < 1e-9, worst
 
 
-@pytest.mark.slow                # 110 s on 2 cores
+@pytest.mark.slow  # 110 s on 2 cores
 def test_checkpointed_gradient_runs_the_same_trajectory_as_the_forward_run():
     """200 steps of the coarse two-field cloud through the impact, float64: value and gradient of
     the projectile's mean axial position with respect to (log C_d, log C_h), by reverse mode with
@@ -332,5 +372,5 @@ def test_checkpointed_gradient_runs_the_same_trajectory_as_the_forward_run():
     v_rev, g_rev = jax.jit(jax.value_and_grad(lambda t: mean_z(t, True)))(theta)
     g_fwd = jax.jit(jax.jacfwd(lambda t: mean_z(t, False)))(theta)
     assert float(v_rev) == pytest.approx(value, rel=1e-12, abs=0)
-    assert abs(float(g_rev[1])) > 1e-10                               # C_h acts within the 200 steps
+    assert abs(float(g_rev[1])) > 1e-10  # C_h acts within the 200 steps
     np.testing.assert_allclose(np.asarray(g_rev), np.asarray(g_fwd), rtol=1e-9)

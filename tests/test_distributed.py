@@ -2,6 +2,7 @@
 gradients and batches as on one device. The two-device checks run in a subprocess with two host
 CPU devices (XLA_FLAGS=--xla_force_host_platform_device_count=2); a one-device mesh runs the
 same shard_map path in this process."""
+
 import dataclasses
 import os
 import subprocess
@@ -103,8 +104,12 @@ print("equal: vmap")
 
 
 def run_on_two_devices(gradient, full=True):
-    env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
-               JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
+    env = dict(
+        os.environ,
+        XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip(),
+        JAX_PLATFORMS="cpu",
+        JAX_ENABLE_X64="1",
+    )
     script = f"GRADIENT = {bool(gradient)}\nFULL = {bool(full)}\n" + TWO_DEVICE_SCRIPT
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
@@ -190,12 +195,13 @@ print("process", pid, "done")
 
 def free_port():
     import socket
+
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-@pytest.mark.slow                # 94 s: two JAX processes joined by jax.distributed
+@pytest.mark.slow  # 94 s: two JAX processes joined by jax.distributed
 def test_two_processes_give_the_one_process_results(tmp_path):
     """Several hosts: two processes on localhost, joined by `jax.distributed.initialize` (CPU
     collectives over gloo), one device each. The particle-split two-field debris cloud and a
@@ -204,8 +210,16 @@ def test_two_processes_give_the_one_process_results(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env.update(JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1")
     out, port = tmp_path / "two_processes.npz", str(free_port())
-    procs = [subprocess.Popen([sys.executable, "-c", TWO_PROCESS_SCRIPT, str(pid), port, str(out)], env=env,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for pid in (0, 1)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", TWO_PROCESS_SCRIPT, str(pid), port, str(out)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for pid in (0, 1)
+    ]
     try:
         logs = [p.communicate(timeout=600) for p in procs]
     finally:
@@ -217,31 +231,40 @@ def test_two_processes_give_the_one_process_results(tmp_path):
 
     scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
     params = jaxmpm.default_params(scene)
-    final, history = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), t_end=2e-7, n_out=2,
-                                     progress=False)
+    final, history = jaxmpm.simulate(
+        scene, params, jaxmpm.init_state(scene, params), t_end=2e-7, n_out=2, progress=False
+    )
     assert float(got["cloud_t"]) == pytest.approx(float(final.t), rel=1e-12)
     for name in ("x", "v", "stress", "energy", "damage"):
         ref = np.asarray(getattr(final, name))
-        np.testing.assert_allclose(got["cloud_" + name], ref, rtol=1e-9, atol=1e-11 * (np.max(np.abs(ref)) + 1e-30),
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            got["cloud_" + name], ref, rtol=1e-9, atol=1e-11 * (np.max(np.abs(ref)) + 1e-30), err_msg=name
+        )
     np.testing.assert_allclose(got["cloud_history_x"], np.asarray(history.x), rtol=1e-12, atol=1e-15)
-    assert np.max(np.abs(np.asarray(final.v[:, 1]) - np.asarray(history.v[0, :, 1]))) > 100.0   # the plate was hit
+    assert np.max(np.abs(np.asarray(final.v[:, 1]) - np.asarray(history.v[0, :, 1]))) > 100.0  # the plate was hit
 
     blocks = two_blocks()
     bp = jaxmpm.default_params(blocks)
     ref, _ = jaxmpm.ensemble(blocks, jaxmpm.batch.sweep(bp, drag_coefficient=[3.0, 30.0, 300.0, 3000.0]), shard=False)
     np.testing.assert_allclose(got["batch_v"], np.asarray(ref.v), rtol=1e-9, atol=1e-11 * float(np.max(np.abs(ref.v))))
     np.testing.assert_allclose(got["batch_x"], np.asarray(ref.x), rtol=1e-12)
-    assert not np.allclose(got["batch_v"][0], got["batch_v"][2])            # the members differ
+    assert not np.allclose(got["batch_v"][0], got["batch_v"][2])  # the members differ
     assert "particle" in str(got["error"]) and "of phase 'block' is outside the grid" in str(got["error"])
 
 
 def two_blocks():
     rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
-    return Scene(grid=Grid(cells=(20, 12), h=0.1), materials=(rock,),
-                 phases=(Phase("a", "rock", Box((0.2, 0.2), (0.8, 0.8)), velocity=(30.0, 0.0), field=0),
-                         Phase("b", "rock", Box((0.9, 0.2), (1.5, 0.8)), field=1)),
-                 drag=10.0, t_end=1e-3, n_out=2)
+    return Scene(
+        grid=Grid(cells=(20, 12), h=0.1),
+        materials=(rock,),
+        phases=(
+            Phase("a", "rock", Box((0.2, 0.2), (0.8, 0.8)), velocity=(30.0, 0.0), field=0),
+            Phase("b", "rock", Box((0.9, 0.2), (1.5, 0.8)), field=1),
+        ),
+        drag=10.0,
+        t_end=1e-3,
+        n_out=2,
+    )
 
 
 @pytest.mark.slow
@@ -267,9 +290,12 @@ def test_shard_order_gives_each_device_a_part_of_every_phase_and_inverts(shards)
     assert len(order) == shards * sum(c) and pad.sum() == shards * sum(c) - sum(counts)
     assert sorted(order[~pad].tolist()) == list(range(sum(counts)))
     for j in range(shards):
-        block = order[j * sum(c):(j + 1) * sum(c)]
-        assert np.all(block[:c[0]] < counts[0]) and np.all(block[c[0]:] >= counts[0])
-    assert np.all(order[pad] == np.repeat([counts[0] - 1, sum(counts) - 1], [c[0] * shards - counts[0], c[1] * shards - counts[1]]))
+        block = order[j * sum(c) : (j + 1) * sum(c)]
+        assert np.all(block[: c[0]] < counts[0]) and np.all(block[c[0] :] >= counts[0])
+    assert np.all(
+        order[pad]
+        == np.repeat([counts[0] - 1, sum(counts) - 1], [c[0] * shards - counts[0], c[1] * shards - counts[1]])
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     perm = jax.tree.map(lambda a: a, distributed._per_particle(s0, lambda a: a[order], lambda a: a))
@@ -295,10 +321,15 @@ def test_bad_meshes_and_unsupported_options_are_named():
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     from jax.sharding import Mesh
-    with pytest.raises(ValueError, match=r"mesh = .* is invalid: allowed a jax.sharding.Mesh with the one axis 'particles'"):
+
+    with pytest.raises(
+        ValueError, match=r"mesh = .* is invalid: allowed a jax.sharding.Mesh with the one axis 'particles'"
+    ):
         jaxmpm.simulate(scene, params, s0, progress=False, mesh=Mesh(np.array(jax.devices()[:1]), ("batch",)))
     with pytest.raises(ValueError, match=r"mesh is invalid with restart_file or debug"):
-        jaxmpm.simulate(scene, params, s0, progress=False, debug=True, mesh=distributed.particle_mesh(jax.devices()[:1]))
+        jaxmpm.simulate(
+            scene, params, s0, progress=False, debug=True, mesh=distributed.particle_mesh(jax.devices()[:1])
+        )
 
 
 def test_unsharded_step_has_no_collectives():

@@ -1,6 +1,7 @@
 """The documentation against the code: the getting-started page's code runs as written, every
 relative link of README.md and the docs pages points to a file that exists, and the version the
 package reports is its distribution's."""
+
 from __future__ import annotations
 
 import pathlib
@@ -40,8 +41,11 @@ def test_getting_started_commands_exist():
 
     parser = build_parser()
     known = set(next(a for a in parser._actions if a.dest == "command").choices)
-    used = {m.group(1) for block in code_blocks(ROOT / "docs" / "getting-started.md", "bash")
-            for m in re.finditer(r"^jaxmpm (\w+)", block, re.M)}
+    used = {
+        m.group(1)
+        for block in code_blocks(ROOT / "docs" / "getting-started.md", "bash")
+        for m in re.finditer(r"^jaxmpm (\w+)", block, re.M)
+    }
     assert used and used <= known, used - known
 
 

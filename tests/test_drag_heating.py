@@ -1,5 +1,6 @@
 """The exchange's heat (scene option drag_heating, our closure): the drag's work on each pair of
 fields booked as the particles' internal energy, so that a multi-field run keeps its energy."""
+
 import dataclasses
 
 import jax
@@ -33,15 +34,16 @@ def test_pair_impulses_carry_the_exchange_force_and_the_heat_is_the_drags_work(n
     np.testing.assert_array_equal(F, exchange(m, v_star, K, dt, V_n, m_min))
     pairs = field_pairs(n_fields)
     assert J.shape == (len(pairs),) + v_star.shape[1:]
-    for k in range(n_fields):   # F_k = -(sum_{j > k} J_kj - sum_{j < k} J_jk) / dt
+    for k in range(n_fields):  # F_k = -(sum_{j > k} J_kj - sum_{j < k} J_jk) / dt
         out = sum(J[i] for i, (a, b) in enumerate(pairs) if a == k) + 0.0
         into = sum(J[i] for i, (a, b) in enumerate(pairs) if b == k) + 0.0
         np.testing.assert_allclose(F[k], -(out - into) / dt, rtol=1e-12, atol=1e-9 * float(jnp.max(jnp.abs(F))))
     # at any velocities the heat sums to the exchange force's work over the step, -dt sum_k F_k . v_k
     u = jnp.asarray(np.random.default_rng(1).normal(size=v_star.shape)) * 100.0
     heat = drag_heat(J, m, u, m_min)
-    np.testing.assert_allclose(jnp.sum(heat, 0), -dt * jnp.sum(F * u, (0, 2)), rtol=1e-10,
-                               atol=1e-12 * float(jnp.max(jnp.abs(heat))))
+    np.testing.assert_allclose(
+        jnp.sum(heat, 0), -dt * jnp.sum(F * u, (0, 2)), rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(heat)))
+    )
     # at the solve's own velocities each pair's work is c_kj |v_k - v_j|^2 >= 0: every share is heat
     empty = m <= m_min
     v_new = jnp.where(empty[..., None], 0.0, v_star + dt * F / jnp.where(empty, 1.0, m)[..., None])
@@ -58,8 +60,9 @@ def test_pair_impulses_carry_the_exchange_force_and_the_heat_is_the_drags_work(n
         # minus the split's own term m_k |dt F_k / m_k|^2 / 2, which the exact loss carries on top
         # of the drag's work at the solve's velocities
         split = 0.5 * jnp.sum((dt * F) ** 2, -1) / jnp.where(empty, 1.0, m)
-        np.testing.assert_allclose(jnp.where(both, heat, 0.0), jnp.where(both, ke - split, 0.0), rtol=1e-8,
-                                   atol=1e-10 * float(jnp.max(heat)))
+        np.testing.assert_allclose(
+            jnp.where(both, heat, 0.0), jnp.where(both, ke - split, 0.0), rtol=1e-8, atol=1e-10 * float(jnp.max(heat))
+        )
 
 
 def total_energy_ratio(scene):
@@ -75,9 +78,11 @@ def test_the_debris_cloud_keeps_its_energy_with_drag_heating_as_one_field_does()
     goes through the plate): without the heat the drag's dissipation leaves the balance (2.8% of
     the impact's energy); with it the run keeps its energy as the same impact in one field does,
     to the scheme's own 0.4-0.5%."""
+
     def cloud(fields, heat):
         s = jaxmpm.load_scene("debris_cloud", fields=fields, overrides={"effects.drag_heating": True} if heat else None)
         return dataclasses.replace(s, t_end=2e-6)
+
     one = total_energy_ratio(cloud(1, False))
     cold = total_energy_ratio(cloud(2, False))
     hot = total_energy_ratio(cloud(2, True))
@@ -113,13 +118,16 @@ def test_the_heat_on_blocks_equals_the_whole_grids_and_its_gradient_matches_diff
             p = dataclasses.replace(params, drag_coefficient=jnp.exp(log_cd))
             s = jax.lax.scan(lambda c, _: (step(p, c), None), s0, None, length=60)[0]
             return diagnostics.internal_energy(s), s
+
         return heat, jnp.log(params.drag_coefficient)
 
     heat, x0 = run(None)
     (value, s_whole), grad = jaxmpm.jit(jax.value_and_grad(heat, has_aux=True))(x0)
     heat_w, _ = run((21, 10))
     _, s_win = jaxmpm.jit(heat_w)(x0)
-    np.testing.assert_allclose(s_win.energy, s_whole.energy, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(s_whole.energy))))
+    np.testing.assert_allclose(
+        s_win.energy, s_whole.energy, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(s_whole.energy)))
+    )
     f = jaxmpm.jit(lambda x: heat(x)[0])
     h = 1e-5
     fd = (float(f(x0 + h)) - float(f(x0 - h))) / (2 * h)
@@ -136,13 +144,19 @@ def test_drag_heating_round_trips_through_a_scene_file():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,options", [("sandwich_target", dict(fields=3, resolution=0.5)),
-                                          ("rod_penetration", dict(fields=2, resolution=0.5))])
+@pytest.mark.parametrize(
+    "name,options",
+    [("sandwich_target", dict(fields=3, resolution=0.5)), ("rod_penetration", dict(fields=2, resolution=0.5))],
+)
 def test_built_in_multi_field_impacts_keep_their_energy_with_drag_heating(name, options):
     """Three fields through a sandwich plate at 800 m/s, a rod into a target at 2 km/s in two
     fields, to their scenes' end times: without the heat 5% and 11% of the energy leave with the
     drag's dissipation; with it the runs keep theirs within 0.5% (0.998 and 0.997 when written)."""
+
     def ratio(heat):
-        return total_energy_ratio(jaxmpm.load_scene(name, **options, overrides={"effects.drag_heating": True} if heat else None))
+        return total_energy_ratio(
+            jaxmpm.load_scene(name, **options, overrides={"effects.drag_heating": True} if heat else None)
+        )
+
     assert 1 - ratio(False) > 0.03
     assert abs(1 - ratio(True)) < 0.005

@@ -1,5 +1,6 @@
 """Only the effects a scene names are in the traced step: an effect that is off leaves its Params
 leaf unread (a dead input of the step's jaxpr) and adds no equations."""
+
 import dataclasses
 
 import jax
@@ -78,10 +79,14 @@ def test_nonzero_param_of_an_absent_effect_is_an_error():
         jaxmpm.simulate(scene, bad, state, t_end=0.01, progress=False)
 
 
-@pytest.mark.parametrize("name, options, parts", [
-    ("debris_cloud", dict(resolution=0.75, fields=2), STAGE_PARTS),
-    ("elastic_impact", {}, ("ddmp_operators", "stress_force", "remap", "velocity_gradient")),
-    ("mpm88", {}, ())])
+@pytest.mark.parametrize(
+    "name, options, parts",
+    [
+        ("debris_cloud", dict(resolution=0.75, fields=2), STAGE_PARTS),
+        ("elastic_impact", {}, ("ddmp_operators", "stress_force", "remap", "velocity_gradient")),
+        ("mpm88", {}, ()),
+    ],
+)
 def test_stages_are_named_in_the_step(name, options, parts):
     """Each stage of the step (and each part of the grid update and the grid-to-particle stage
     that the scene has) carries its name into the lowered program, where a profile reads it

@@ -32,12 +32,14 @@ def constants(material):
 # (Saurel-Abgrall stiffened gas at rest: K = gamma (p0 + p_inf)) and steel (K = 160 GPa).
 KAPPA = np.array([1 / (1.4 * 101325.0), 1 / (4.4 * (101325.0 + 6e8)), 1 / 160e9])
 # node 0: all three fields; node 1: air and water; node 2: water and steel; node 3: water alone
-THETA = np.array([[0.2, 0.5, 0.0, 0.0],
-                  [0.3, 0.5, 0.6, 0.9],
-                  [0.5, 0.0, 0.4, 0.0]])
-P = np.array([[2.0e5, 1.0e5, 7.0e15, -3.0e15],     # absent fields (theta = 0) hold absurd pressures:
-              [3.0e6, 1.0e6, 2.0e8, 5.0e7],       # they must have no say
-              [-4.0e7, 9.0e15, 1.0e9, 8.0e15]])
+THETA = np.array([[0.2, 0.5, 0.0, 0.0], [0.3, 0.5, 0.6, 0.9], [0.5, 0.0, 0.4, 0.0]])
+P = np.array(
+    [
+        [2.0e5, 1.0e5, 7.0e15, -3.0e15],  # absent fields (theta = 0) hold absurd pressures:
+        [3.0e6, 1.0e6, 2.0e8, 5.0e7],  # they must have no say
+        [-4.0e7, 9.0e15, 1.0e9, 8.0e15],
+    ]
+)
 
 
 def hand_common_pressure(theta, kappa, p, fields_present):
@@ -58,9 +60,9 @@ def test_e6_common_pressure_weights_each_field_by_theta_times_compressibility():
     present = [(0, 1, 2), (0, 1), (1, 2), (1,)]
     expected = [hand_common_pressure(THETA[:, n], KAPPA, P[:, n], f) for n, f in enumerate(present)]
     np.testing.assert_allclose(p, expected, rtol=1e-13)
-    assert p[3] == pytest.approx(P[1, 3], rel=1e-15)                 # a lone field: its own pressure
-    assert abs(p[1] - P[0, 1]) < 1e-4 * abs(P[1, 1] - P[0, 1])        # air beside water: the air's
-    assert abs(p[2] - P[1, 2]) < 0.02 * abs(P[2, 2] - P[1, 2])        # water beside steel: the water's
+    assert p[3] == pytest.approx(P[1, 3], rel=1e-15)  # a lone field: its own pressure
+    assert abs(p[1] - P[0, 1]) < 1e-4 * abs(P[1, 1] - P[0, 1])  # air beside water: the air's
+    assert abs(p[2] - P[1, 2]) < 0.02 * abs(P[2, 2] - P[1, 2])  # water beside steel: the water's
 
 
 def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_groups():
@@ -75,7 +77,7 @@ def test_e8_ambient_pressure_is_the_common_pressure_of_the_other_groups():
             others = [i for i in range(3) if i != k and THETA[i, n] > 0]
             expected = hand_common_pressure(THETA[:, n], KAPPA, P[:, n], others) if others else 0.0
             assert amb[k, n] == pytest.approx(expected, rel=1e-12, abs=0.0), (k, n)
-    assert amb[1, 3] == 0.0                                          # water alone: vacuum around it
+    assert amb[1, 3] == 0.0  # water alone: vacuum around it
 
 
 @pytest.mark.parametrize("continuity", ["off", "transport"])
@@ -101,13 +103,19 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
 
     def scene(fields, interface_forces=True):
         coupled = len(set(fields)) > 1
-        return Scene(grid=Grid(cells=(12, 12), h=0.1), materials=(rock, gas, water), c_h=0.01,
-                     continuity=continuity if coupled and interface_forces else "off",
-                     interface_forces=interface_forces if coupled else False,
-                     phases=(Phase("rock", "rock", Box((0.3, 0.3), (0.7, 0.7)), field=fields[0], fraction=0.6),
-                             Phase("gas", "gas", Box((0.2, 0.5), (1.0, 0.9)), field=fields[1], fraction=0.4),
-                             Phase("water", "water", Box((0.0, 0.0), (0.5, 0.4)), field=fields[2], fraction=0.3)),
-                     drag=1.0 if coupled else None)
+        return Scene(
+            grid=Grid(cells=(12, 12), h=0.1),
+            materials=(rock, gas, water),
+            c_h=0.01,
+            continuity=continuity if coupled and interface_forces else "off",
+            interface_forces=interface_forces if coupled else False,
+            phases=(
+                Phase("rock", "rock", Box((0.3, 0.3), (0.7, 0.7)), field=fields[0], fraction=0.6),
+                Phase("gas", "gas", Box((0.2, 0.5), (1.0, 0.9)), field=fields[1], fraction=0.4),
+                Phase("water", "water", Box((0.0, 0.0), (0.5, 0.4)), field=fields[2], fraction=0.3),
+            ),
+            drag=1.0 if coupled else None,
+        )
 
     three = scene((0, 1, 2))
     others = {"gas and water in one field": scene((0, 1, 1))}
@@ -126,8 +134,10 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
         beta = ddmp_beta(st.xi)
         g = particle_to_grid(lay3, params, st, s, beta)
         p_amb_n = grid_acceleration(lay3, params, s, st, beta, g, None, jnp.asarray(1e-6), _mass_floor(lay3, s))[3]
-        return (transfer.interpolate(st, lay3.field, p_amb_n[..., None])[:, 0],
-                {name: ambient_pressure_by_phase(Layout.of(sc), params, st, s) for name, sc in others.items()})
+        return (
+            transfer.interpolate(st, lay3.field, p_amb_n[..., None])[:, 0],
+            {name: ambient_pressure_by_phase(Layout.of(sc), params, st, s) for name, sc in others.items()},
+        )
 
     by_field, by_phase = ambients(params, s)
     by_field = np.asarray(by_field)
@@ -137,16 +147,17 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
     rock_sl = jaxmpm.state.phase_slices(three)[0]
     x, y = np.asarray(s.x[rock_sl]).T
     amb = by_field[rock_sl]
-    alone = (x > 0.6) & (y < 0.4)                     # nodes x >= 0.6, y <= 0.4: no gas, no water there
+    alone = (x > 0.6) & (y < 0.4)  # nodes x >= 0.6, y <= 0.4: no gas, no water there
     assert alone.sum() >= 4 and np.all(amb[alone] == 0.0)
-    assert np.all(np.abs(amb[y > 0.55]) > 1e3)                       # inside the gas
-    assert np.all(np.abs(amb[(x < 0.4) & (y < 0.4)]) > 1e3)          # inside the water
+    assert np.all(np.abs(amb[y > 0.55]) > 1e3)  # inside the gas
+    assert np.all(np.abs(amb[(x < 0.4) & (y < 0.4)]) > 1e3)  # inside the water
 
 
 # ---------------------------------------------------------------------- E15: the linear fit
 def fitted_and_averaged(grid, x, field, p, V, n_fields):
     """Nodal phase pressures (K, n_nodes) of the E15 fit, by the package's pipeline (linear-hat
     stencil, moments, one scatter per field, fit), and the plain V_p S_np averages by hand."""
+
     @jax.jit
     def fit_of(x, field, p, V):
         st = shapes.linear_stencil(grid, x)
@@ -180,10 +191,10 @@ def test_e15_fit_is_exact_for_linear_pressure_at_interior_edge_and_interface_nod
     rng = np.random.default_rng(10 + dim)
     cells = (4,) * dim
     grid = Grid(cells=cells, h=0.25)
-    n = 40 * 2 ** dim
+    n = 40 * 2**dim
     x = rng.uniform(0.0, 1.0, (n, dim))
     field = (x[:, 0] > 0.5).astype(np.int32)
-    V = rng.uniform(0.5, 1.5, n) * grid.h ** dim / 8
+    V = rng.uniform(0.5, 1.5, n) * grid.h**dim / 8
     a = np.array([1.0e5, -3.0e6])
     b = np.array([[2.0e6, -5.0e5][:dim], [-7.0e6, 4.0e6][:dim]])
     p = a[field] + np.sum(b[field] * x, -1)
@@ -198,7 +209,7 @@ def test_e15_fit_is_exact_for_linear_pressure_at_interior_edge_and_interface_nod
     assert touched[0, interface].all() and touched[1, interface].all()
     average = wp / np.where(touched, w, 1.0)
     bias = np.abs(average - exact)[:, interface]
-    assert np.all(bias > 0.1 * np.abs(b[:, :1]) * grid.h), bias      # one-sided: the average is off
+    assert np.all(bias > 0.1 * np.abs(b[:, :1]) * grid.h), bias  # one-sided: the average is off
 
 
 def test_e15_fit_falls_back_to_the_plain_average_where_it_is_singular():
@@ -217,9 +228,9 @@ def test_e15_fit_falls_back_to_the_plain_average_where_it_is_singular():
     touched = w[0] > 0
     np.testing.assert_allclose(fit[0, touched], wp[0, touched] / w[0, touched], rtol=1e-12)
     exact = 1.0e5 + node_positions(grid) @ np.array([2.0e6, -5.0e5])
-    assert np.max(np.abs(fit[0, touched] - exact[touched])) > 1e3      # the average is not the fit
-    x[np.argmin(x[:, 0]), 1] = 0.45                                    # off the line, in each of
-    x[np.argmax(x[:, 0]), 1] = 0.30                                    # the two cells
+    assert np.max(np.abs(fit[0, touched] - exact[touched])) > 1e3  # the average is not the fit
+    x[np.argmin(x[:, 0]), 1] = 0.45  # off the line, in each of
+    x[np.argmax(x[:, 0]), 1] = 0.30  # the two cells
     p = 1.0e5 + 2.0e6 * x[:, 0] - 5.0e5 * x[:, 1]
     fit, w, _ = fitted_and_averaged(grid, x, field, p, V, 1)
     touched = w[0] > 0
@@ -237,7 +248,7 @@ def test_stiffened_gas_water_eos_and_sound_speed_match_the_closed_forms():
     assert water.model == "stiffened_gas"
     m = model_of(water.model)
     c = constants(water)
-    g, p_inf, rho0, p0 = 4.4, 6.0e8, 1000.0, 101325.0                 # Saurel & Abgrall 1999
+    g, p_inf, rho0, p0 = 4.4, 6.0e8, 1000.0, 101325.0  # Saurel & Abgrall 1999
     assert {k: float(v) for k, v in c.items()} == {"gamma": g, "p_inf": p_inf, "rho0": rho0, "p0": p0}
     p_init, e0 = m.initial(c)
     assert float(p_init) == p0
@@ -248,7 +259,7 @@ def test_stiffened_gas_water_eos_and_sound_speed_match_the_closed_forms():
     p = np.asarray(A + B * e)
     p_hand = (g - 1) * np.asarray(rho) * np.asarray(e) - g * p_inf
     np.testing.assert_allclose(p, p_hand, rtol=1e-13)
-    assert p[0] == pytest.approx(p0, rel=1e-9)                          # EOS consistency at rest
+    assert p[0] == pytest.approx(p0, rel=1e-9)  # EOS consistency at rest
     c_hand = np.sqrt(g * (p_hand + p_inf) / np.asarray(rho))
     np.testing.assert_allclose(np.asarray(m.wave_speed(c, rho, e, 1)), c_hand, rtol=1e-13)
     np.testing.assert_allclose(np.asarray(m.bulk_modulus(c, rho, e, 1)), g * (p_hand + p_inf), rtol=1e-13)
@@ -265,7 +276,7 @@ def test_stiffened_gas_water_compressed_at_one_point_follows_its_isentrope():
     water = library_material("water")
     g, p_inf, rho0, p0 = 4.4, 6.0e8, 1000.0, 101325.0
     n, t_end = 100, 1.0
-    rate = np.log(1.05) / 3 / t_end                                    # J = exp(-3 rate t) -> 1 / 1.05
+    rate = np.log(1.05) / 3 / t_end  # J = exp(-3 rate t) -> 1 / 1.05
     t, hist = drive(water, lambda t: -rate * jnp.eye(3), t_end, n)
     rho = rho0 * np.exp(3 * rate * t)
     assert rho[-1] == pytest.approx(1.05 * rho0, rel=1e-12)
@@ -273,7 +284,7 @@ def test_stiffened_gas_water_compressed_at_one_point_follows_its_isentrope():
     e = np.array([h.energy for h in hist])
     np.testing.assert_allclose(p, (g - 1) * rho * e - g * p_inf, rtol=1e-12)
     np.testing.assert_allclose(p + p_inf, (p0 + p_inf) * (rho / rho0) ** g, rtol=1e-6)
-    assert p[-1] > 1e8                                                  # it was compressed: 0.24 GPa
+    assert p[-1] > 1e8  # it was compressed: 0.24 GPa
 
 
 def pulse_speed_between_walls(material, c_expect, cells, L=1.0):
@@ -312,22 +323,24 @@ def test_tait_water_pressure_and_sound_speed_match_the_closed_forms():
     assert {k: float(v) for k, v in c.items()} == {"tait_n": n, "tait_B": B, "rho0": rho0, "p0": p0}
     assert m.initial(c) == (p0, 0.0)
     rho = np.array([rho0, 1.03 * rho0, 0.99 * rho0])
-    e = np.array([0.0, 5.0e4, -1.0e3])                                  # e has no say
+    e = np.array([0.0, 5.0e4, -1.0e3])  # e has no say
     A, Be = eos_coefficients("tait", c, jnp.asarray(rho))
     p = np.asarray(A + Be * jnp.asarray(e))
     p_hand = B * ((rho / rho0) ** n - 1) + p0
     np.testing.assert_allclose(p, p_hand, rtol=1e-13)
     assert p[0] == p0
-    c2_hand = n * B * rho ** (n - 1) / rho0 ** n
-    np.testing.assert_allclose(np.asarray(m.wave_speed(c, jnp.asarray(rho), jnp.asarray(e), 1)) ** 2, c2_hand,
-                               rtol=1e-13)
+    c2_hand = n * B * rho ** (n - 1) / rho0**n
+    np.testing.assert_allclose(
+        np.asarray(m.wave_speed(c, jnp.asarray(rho), jnp.asarray(e), 1)) ** 2, c2_hand, rtol=1e-13
+    )
     assert c2_hand[0] == pytest.approx(n * B / rho0, rel=1e-15)
-    np.testing.assert_allclose(np.asarray(m.bulk_modulus(c, jnp.asarray(rho), jnp.asarray(e), 1)), rho * c2_hand,
-                               rtol=1e-13)
+    np.testing.assert_allclose(
+        np.asarray(m.bulk_modulus(c, jnp.asarray(rho), jnp.asarray(e), 1)), rho * c2_hand, rtol=1e-13
+    )
     steps, t_end = 20, 1.0
     rate = np.log(1.03) / 3 / t_end
     _, hist = drive(water, lambda t: -rate * jnp.eye(3), t_end, steps)
-    assert hist[-1].pressure == pytest.approx(B * (1.03 ** n - 1) + p0, rel=1e-12)
+    assert hist[-1].pressure == pytest.approx(B * (1.03**n - 1) + p0, rel=1e-12)
 
 
 # ------------------------------------------------------------------ concrete: Drucker-Prager
@@ -352,23 +365,28 @@ def test_drucker_prager_concrete_caps_von_mises_stress_at_yield_of_pressure(pres
     c = concrete.as_dict()
     K, G = c["K"], c["G"]
     Y = yield_stress(c, pressure)
-    expected_branch = ("tension cut-off" if c["Y0"] + c["dY_dp"] * pressure <= 0 else
-                       "cap" if c["Y0"] + c["dY_dp"] * pressure >= c["Ymax"] else "slope")
+    expected_branch = (
+        "tension cut-off"
+        if c["Y0"] + c["dY_dp"] * pressure <= 0
+        else "cap"
+        if c["Y0"] + c["dY_dp"] * pressure >= c["Ymax"]
+        else "slope"
+    )
     assert expected_branch == branch
     n1, n2, dt = 10, 60, 1e-3
     J = 1 - pressure / K
-    r_v = -np.log(J) / (3 * n1 * dt)                                   # tr L = -3 r_v over n1 steps
-    eps_total = 1.2 * max(c["Ymax"], 1e6) / (6 * G)                    # enough shear to pass any Y
+    r_v = -np.log(J) / (3 * n1 * dt)  # tr L = -3 r_v over n1 steps
+    eps_total = 1.2 * max(c["Ymax"], 1e6) / (6 * G)  # enough shear to pass any Y
     r_s = eps_total / (n2 * dt)
     L_vol = -r_v * jnp.eye(3)
     L_dev = r_s * jnp.diag(jnp.array([-2.0, 1.0, 1.0]))
     t, hist = drive(concrete, lambda t: jnp.where(t < (n1 - 0.5) * dt, L_vol, L_dev), (n1 + n2) * dt, n1 + n2)
     p = np.array([h.pressure for h in hist])
-    np.testing.assert_allclose(p[n1 - 1:], -K * (J - 1), rtol=1e-9)   # the pressure, then held
+    np.testing.assert_allclose(p[n1 - 1 :], -K * (J - 1), rtol=1e-9)  # the pressure, then held
     seq = np.array([np.sqrt(1.5 * np.sum((h.stress + h.pressure * np.eye(3)) ** 2)) for h in hist])
     shear_strain = r_s * dt * np.arange(1, n2 + 1)
     expected = np.minimum(6 * G * shear_strain, Y)
     np.testing.assert_allclose(seq[n1:], expected, rtol=1e-9, atol=1e-9 * c["Y0"])
     assert np.all(np.array([h.damage for h in hist]) == 0.0)
     if Y > 0:
-        assert np.sum(expected == Y) > 5                               # the cap was reached
+        assert np.sum(expected == Y) > 5  # the cap was reached

@@ -8,6 +8,7 @@ surge front Z = x / a against T = t sqrt(2 g / a) of their Fig. 3 for n^2 = 2, a
 (J. C. Martin and W. J. Moyce, Phil. Trans. R. Soc. Lond. A 244 (1952) 312-324, Part IV), as
 digitised in PySPH's examples (pypr/pysph, pysph/examples/db_exp_data.py).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -23,11 +24,23 @@ from jaxmpm import Box, Grid, Phase, Scene
 from jaxmpm.materials.library import library_material
 
 G = 9.81
-A = 0.057                      # column width, m (2.25 in)
-C_WATER = 25.0                 # lowered sound speed, m/s
+A = 0.057  # column width, m (2.25 in)
+C_WATER = 25.0  # lowered sound speed, m/s
 # Martin & Moyce (1952) Fig. 3, n^2 = 2, a = 2.25 in: (T, Z)
-MARTIN_MOYCE = np.array([[0.832, 1.217], [1.219, 1.474], [1.997, 2.292], [2.547, 2.995], [3.345, 4.134],
-                         [4.034, 4.944], [4.418, 5.881], [5.091, 6.980], [5.685, 7.945], [6.306, 8.966]])
+MARTIN_MOYCE = np.array(
+    [
+        [0.832, 1.217],
+        [1.219, 1.474],
+        [1.997, 2.292],
+        [2.547, 2.995],
+        [3.345, 4.134],
+        [4.034, 4.944],
+        [4.418, 5.881],
+        [5.091, 6.980],
+        [5.685, 7.945],
+        [6.306, 8.966],
+    ]
+)
 
 
 def water(c=C_WATER):
@@ -38,9 +51,16 @@ def water(c=C_WATER):
 def dam_break(cells_per_a: int, T_end: float, cfl: float = 0.3, **changes) -> Scene:
     """The column a x 2a in a closed 5a x 5a box with slip walls, 2 x 2 particles per cell."""
     walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
-    scene = Scene(grid=Grid(cells=(5 * cells_per_a, 5 * cells_per_a), h=A / cells_per_a), materials=(water(),),
-                  phases=(Phase("water", "water", Box((0.0, 0.0), (A, 2 * A)), ppc=2),), boundary=walls,
-                  gravity=(0.0, -G), t_end=T_end / math.sqrt(2 * G / A), cfl=cfl, name="dam_break")
+    scene = Scene(
+        grid=Grid(cells=(5 * cells_per_a, 5 * cells_per_a), h=A / cells_per_a),
+        materials=(water(),),
+        phases=(Phase("water", "water", Box((0.0, 0.0), (A, 2 * A)), ppc=2),),
+        boundary=walls,
+        gravity=(0.0, -G),
+        t_end=T_end / math.sqrt(2 * G / A),
+        cfl=cfl,
+        name="dam_break",
+    )
     return dataclasses.replace(scene, **changes)
 
 
@@ -61,9 +81,11 @@ def run_dam_break(scene, n_out):
 
 def front_speed(T, Z, lo=3.0, hi=4.5):
     """dZ/dT between the times the front passes Z = lo and Z = hi (linear interpolation)."""
+
     def crossing(z):
         k = int(np.argmax(Z >= z))
         return T[k - 1] + (z - Z[k - 1]) * (T[k] - T[k - 1]) / (Z[k] - Z[k - 1])
+
     return (hi - lo) / (crossing(hi) - crossing(lo))
 
 
@@ -73,18 +95,28 @@ def tank_at_rest(cells_per_H: int = 20, H: float = 0.1) -> tuple[Scene, object, 
     -> (scene, params, initial state)."""
     walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
     h = H / cells_per_H
-    scene = Scene(grid=Grid(cells=(2 * cells_per_H, cells_per_H + 4), h=h), materials=(water(),),
-                  phases=(Phase("water", "water", Box((0.0, 0.0), (2 * H, H)), ppc=2),), boundary=walls,
-                  gravity=(0.0, -G), cfl=0.3, name="tank")
+    scene = Scene(
+        grid=Grid(cells=(2 * cells_per_H, cells_per_H + 4), h=h),
+        materials=(water(),),
+        phases=(Phase("water", "water", Box((0.0, 0.0), (2 * H, H)), ppc=2),),
+        boundary=walls,
+        gravity=(0.0, -G),
+        cfl=0.3,
+        name="tank",
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     c = params.phases["water"]
     p = c["rho0"] * G * (H - s0.x[:, 1])
-    rho = c["rho0"] * (1 + p / c["tait_B"]) ** (1 / c["tait_n"])           # Tait with p0 = 0
+    rho = c["rho0"] * (1 + p / c["tait_B"]) ** (1 / c["tait_n"])  # Tait with p0 = 0
     d = scene.dim
-    s0 = dataclasses.replace(s0, volume=s0.mass / rho, pressure=p, stress=-p[:, None, None] * jnp.eye(d, dtype=p.dtype),
-                             F=jnp.broadcast_to(jnp.eye(d, dtype=p.dtype) * (c["rho0"] / rho)[:, None, None] ** (1 / d),
-                                                s0.F.shape))
+    s0 = dataclasses.replace(
+        s0,
+        volume=s0.mass / rho,
+        pressure=p,
+        stress=-p[:, None, None] * jnp.eye(d, dtype=p.dtype),
+        F=jnp.broadcast_to(jnp.eye(d, dtype=p.dtype) * (c["rho0"] / rho)[:, None, None] ** (1 / d), s0.F.shape),
+    )
     return scene, params, s0
 
 
@@ -122,7 +154,7 @@ def _check_dam_break(T, dE, Z, vmax):
     measured = np.polyfit(MARTIN_MOYCE[late, 0], MARTIN_MOYCE[late, 1], 1)[0]
     speed = front_speed(T, Z, 3.5, 4.75)
     assert abs(speed / measured - 1) < 0.1, (speed, measured)
-    assert Z[-1] > 4.9                                               # the surge reached the far wall
+    assert Z[-1] > 4.9  # the surge reached the far wall
 
 
 def test_dam_break_hits_the_wall_without_gaining_energy():
@@ -185,9 +217,12 @@ def test_mpm88_with_linear_shapes_and_musl_is_stable_at_the_peers_step():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation (issue 49): with DDMP, splashed particles reach the "
-                   "ceiling's wall layer and the corner, are compressed to J ~ 0.5 and the run goes non-finite "
-                   "at t ~ 0.38 s, with half the step too")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation (issue 49): with DDMP, splashed particles reach the "
+    "ceiling's wall layer and the corner, are compressed to J ~ 0.5 and the run goes non-finite "
+    "at t ~ 0.38 s, with half the step too",
+)
 def test_mpm88_with_the_default_scheme_is_stable_at_the_peers_step():
     finite, vmax, de = mpm88_run("ddmp")
     assert finite and vmax < 10.0 and de < 0.01, (finite, vmax, de)

@@ -1,5 +1,6 @@
 """A run's robustness: saving costs what is new, one Ctrl-C or SIGTERM stops a run with its restart
 file saved and no temporary file left, and a later run removes those a killed run left."""
+
 import dataclasses
 import os
 import signal
@@ -48,13 +49,13 @@ def test_a_save_writes_what_is_new_not_the_history_again(tmp_path, monkeypatch):
 
     monkeypatch.setattr(restart, "save", measured)
     with warnings.catch_warnings():
-        warnings.simplefilter("error", RuntimeWarning)       # n_out <= the steps: no warning
+        warnings.simplefilter("error", RuntimeWarning)  # n_out <= the steps: no warning
         final, hist = jaxmpm.simulate(scene, params, s0, progress=False, restart_file=str(path), restart_every=1)
     state_bytes = sum(np.asarray(a).nbytes for a in jax.tree.leaves(s0))
     assert len(sizes) >= 60 and os.path.getsize(path) > 50 * state_bytes
     later = sizes[1:]
-    assert max(later) < 4 * state_bytes, (max(later), state_bytes)      # one state and one output, with metadata
-    assert max(sizes[-10:]) < 2 * max(sizes[1:11])                       # as much at the end as at the start
+    assert max(later) < 4 * state_bytes, (max(later), state_bytes)  # one state and one output, with metadata
+    assert max(sizes[-10:]) < 2 * max(sizes[1:11])  # as much at the end as at the start
     # and the file is the complete run: it loads with every output, and resumes to the same results
     saved = restart.load(path)
     assert saved["next_out"] == 60 and len(saved["history"]) == 61
@@ -66,14 +67,21 @@ def test_more_outputs_than_steps_are_warned_about():
     scene, params, s0 = _small(t_end=0.05, n_out=50)
     steps = jaxmpm.plan_steps(scene, params, s0, 0.05, safety=1.0)
     assert steps < 50
-    with pytest.warns(RuntimeWarning, match=rf"n_out = 50 exceeds the about {steps} steps of the run to t_end = 0.05 s"):
+    with pytest.warns(
+        RuntimeWarning, match=rf"n_out = 50 exceeds the about {steps} steps of the run to t_end = 0.05 s"
+    ):
         jaxmpm.simulate(scene, params, s0, progress=False)
 
 
 def _start(out, *extra):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen([sys.executable, "-m", "jaxmpm", "run", *RUN, "--out", str(out), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    return subprocess.Popen(
+        [sys.executable, "-m", "jaxmpm", "run", *RUN, "--out", str(out), *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
 
 
 def _wait_for(path, proc, timeout=400.0):
@@ -94,7 +102,7 @@ def test_one_ctrl_c_stops_a_run_of_many_outputs_and_leaves_a_resumable_restart_f
     proc = _start(out, "--t-end", "3", "--n-out", "150", "--restart-every", "1")
     try:
         _wait_for(rfile, proc)
-        time.sleep(1.0)                       # well into the outputs, saving after each
+        time.sleep(1.0)  # well into the outputs, saving after each
         sent = time.monotonic()
         proc.send_signal(signal.SIGINT)
         stdout, stderr = proc.communicate(timeout=60)
@@ -112,8 +120,9 @@ def test_one_ctrl_c_stops_a_run_of_many_outputs_and_leaves_a_resumable_restart_f
     assert 0 < saved["next_out"] < 150
     scene, params, final, history = restart.resume(rfile, progress=False, restart_every=0)
     assert float(final.t) == pytest.approx(3.0) and history.x.shape[0] == 151
-    np.testing.assert_array_equal(np.asarray(history.x[: saved["next_out"] + 1]),
-                                  np.stack([np.asarray(s.x) for s in saved["history"]]))
+    np.testing.assert_array_equal(
+        np.asarray(history.x[: saved["next_out"] + 1]), np.stack([np.asarray(s.x) for s in saved["history"]])
+    )
 
 
 def test_sigterm_stops_a_run_leaving_no_temporary_file(tmp_path):
@@ -138,15 +147,15 @@ def test_a_run_removes_the_temporary_files_killed_runs_left(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
-    gone.wait()                                                   # a process that no longer exists
+    gone.wait()  # a process that no longer exists
     dead = out / f".elastic_impact.restart.h5.{gone.pid}-0123456789ab.tmp"
-    old = out / ".elastic_impact.h5.0123456789ab.tmp"             # naming no process, an hour old
-    recent = out / ".elastic_impact.h5.ba9876543210.tmp"          # naming no process, just written
-    live = out / f".elastic_impact.restart.h5.{os.getpid()}-abcdefabcdef.tmp"    # a running process's
+    old = out / ".elastic_impact.h5.0123456789ab.tmp"  # naming no process, an hour old
+    recent = out / ".elastic_impact.h5.ba9876543210.tmp"  # naming no process, just written
+    live = out / f".elastic_impact.restart.h5.{os.getpid()}-abcdefabcdef.tmp"  # a running process's
     for p in (dead, old, recent, live):
         p.write_bytes(b"partial")
     os.utime(old, (time.time() - 3600, time.time() - 3600))
-    (out / "elastic_impact.h5").write_bytes(b"an earlier output")     # so that the run stops before simulating
+    (out / "elastic_impact.h5").write_bytes(b"an earlier output")  # so that the run stops before simulating
     assert cli.main(["run", *RUN, "--out", str(out)]) == 2
     captured = capsys.readouterr()
     assert f"removed 2 temporary files that earlier runs killed while writing left in {out}" in captured.out
@@ -169,15 +178,15 @@ def test_sigint_inside_simulate_stops_after_the_chunk_with_the_file_saved(tmp_pa
     def save_with_a_signal_inside(*a, **k):
         calls["n"] += 1
         if calls["n"] == 3:
-            os.kill(os.getpid(), signal.SIGINT)       # handled while this save runs: deferred
+            os.kill(os.getpid(), signal.SIGINT)  # handled while this save runs: deferred
         real(*a, **k)
 
     monkeypatch.setattr(restart, "save", save_with_a_signal_inside)
     handler = signal.getsignal(signal.SIGINT)
     with pytest.raises(Interrupted, match=rf"stopped by SIGINT: its progress is saved in {path}"):
         jaxmpm.simulate(scene, params, s0, progress=False, chunk=7, restart_file=str(path), restart_every=1)
-    assert signal.getsignal(signal.SIGINT) is handler          # the handler as before
-    assert calls["n"] == 4                                      # the save it was in, and one on stopping
+    assert signal.getsignal(signal.SIGINT) is handler  # the handler as before
+    assert calls["n"] == 4  # the save it was in, and one on stopping
     monkeypatch.setattr(restart, "save", real)
     _, _, final, hist = restart.resume(path, progress=False)
     np.testing.assert_array_equal(np.asarray(final.x), np.asarray(full.x))

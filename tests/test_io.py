@@ -1,4 +1,5 @@
 """jaxmpm.io: HDF5 round trip, refusal to overwrite, atomic writes, XDMF validity, plots, summaries."""
+
 import dataclasses
 import os
 import xml.etree.ElementTree as ET
@@ -199,7 +200,7 @@ def test_plot_state_adds_a_damage_panel_where_material_has_failed(run, tmp_path)
     import struct
 
     scene, _, final, _ = run
-    width = lambda path: struct.unpack(">I", path.read_bytes()[16:20])[0]         # PNG IHDR width
+    width = lambda path: struct.unpack(">I", path.read_bytes()[16:20])[0]  # PNG IHDR width
     intact = io.plot_state(scene, final, tmp_path / "intact.png")
     broken = dataclasses.replace(final, damage=final.damage.at[::2].set(1.0))
     cracked = io.plot_state(scene, broken, tmp_path / "cracked.png")
@@ -257,8 +258,12 @@ def test_read_names_a_file_that_is_not_an_output_file(run, tmp_path):
     rst = _restart_file(scene, params, history, tmp_path / "run.restart.h5")
     folder = tmp_path / "folder.h5"
     folder.mkdir()
-    for bad, what in ((text, "is not a readable HDF5 file"), (cut, "is not a readable HDF5 file"),
-                      (rst, "is a jaxmpm restart file, not an output file"), (folder, "is a directory")):
+    for bad, what in (
+        (text, "is not a readable HDF5 file"),
+        (cut, "is not a readable HDF5 file"),
+        (rst, "is a jaxmpm restart file, not an output file"),
+        (folder, "is a directory"),
+    ):
         for fn in (io.read, io.summary):
             with pytest.raises(ValueError, match=what) as e:
                 fn(bad)
@@ -300,8 +305,11 @@ def test_write_checks_every_field_against_the_scene(run, tmp_path):
     """Not only x: a field with the wrong particle count is refused, and nothing is written."""
     scene, _, _, history = run
     short_F = dataclasses.replace(history, F=history.F[:, :10])
-    with pytest.raises(ValueError, match=r"history.F has shape \(3, 10, 2, 2\): the scene 'elastic_impact' has \d+ "
-                                         r"particles in 2D and needs \(3, \d+, 2, 2\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"history.F has shape \(3, 10, 2, 2\): the scene 'elastic_impact' has \d+ "
+        r"particles in 2D and needs \(3, \d+, 2, 2\)",
+    ):
         io.write(tmp_path / "f.h5", scene, short_F)
     with pytest.raises(ValueError, match=r"history.damage has shape"):
         io.write(tmp_path / "f.h5", scene, dataclasses.replace(history, damage=history.damage[0]))
@@ -364,7 +372,9 @@ def test_a_file_in_place_of_a_folder_is_named(run, tmp_path):
 def test_plot_state_checks_the_state_and_the_suffix(run, bar, tmp_path):
     scene, _, final, _ = run
     scene1, _, hist1 = bar
-    with pytest.raises(ValueError, match=r"state has \d+ particles in 2D: the scene 'vibrating_bar' has \d+ particles in 1D"):
+    with pytest.raises(
+        ValueError, match=r"state has \d+ particles in 2D: the scene 'vibrating_bar' has \d+ particles in 1D"
+    ):
         io.plot_state(scene1, final, tmp_path / "a.png")
     with pytest.raises(ValueError, match=r"state.v has shape"):
         io.plot_state(scene, dataclasses.replace(final, v=final.v[:5]), tmp_path / "a.png")

@@ -1,4 +1,5 @@
 """Elastic models (linear elastic, hypoelastic with the Jaumann rate) and the material library."""
+
 import pathlib
 
 import jax
@@ -26,13 +27,13 @@ def test_jaumann_rate_rotates_stress_with_a_rigid_spin():
     a = omega * t_end
     R = jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
     np.testing.assert_allclose(np.asarray(s[0]), np.asarray(R @ s0[0] @ R.T), rtol=0, atol=2e-4 * 3e6)
-    assert float(jnp.trace(s[0])) == pytest.approx(float(jnp.trace(s0[0])), rel=1e-9)   # spin keeps invariants
+    assert float(jnp.trace(s[0])) == pytest.approx(float(jnp.trace(s0[0])), rel=1e-9)  # spin keeps invariants
 
 
 def test_hypoelastic_uniaxial_strain_matches_linear_elasticity_at_small_strain():
     lam, mu = elastic.lame(C, 3)
     eps, n = 1e-4, 100
-    L = jnp.zeros((1, 3, 3)).at[0, 0, 0].set(eps)   # rate 1e-4 per unit time, integrated over t = 1
+    L = jnp.zeros((1, 3, 3)).at[0, 0, 0].set(eps)  # rate 1e-4 per unit time, integrated over t = 1
     F, s = jnp.eye(3)[None], jnp.zeros((1, 3, 3))
     for _ in range(n):
         F, s = elastic.hypoelastic_update(C, F, s, L, 1.0 / n)
@@ -110,31 +111,39 @@ def test_constants_not_in_si_units_warn():
     import warnings
 
     from jaxmpm import Material
+
     with pytest.warns(UserWarning, match=r"materials\.al: its wave speed at rest is 1\d\d,\d{3} m/s.*rho0 in kg/m\^3"):
         Material.make("al", "linear_elastic", rho0=2.7, E=70e9, nu=0.3)
-    with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3 is denser than any real material") as rec:
+    with pytest.warns(
+        UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3 is denser than any real material"
+    ) as rec:
         Material.make("al", "linear_elastic", rho0=27000.0, E=70e9, nu=0.3)
     with pytest.warns(UserWarning, match=r"materials\.al\.rho0 = 27000 kg/m\^3") as rec_plain:
         Material("al", "linear_elastic", (("rho0", 27000.0), ("E", 70e9), ("nu", 0.3)))
-    assert rec[0].filename == rec_plain[0].filename == __file__            # the line that made it
+    assert rec[0].filename == rec_plain[0].filename == __file__  # the line that made it
     with pytest.warns(UserWarning, match=r"materials\.w: its wave speed"):
         Material.make("w", "stiffened_gas", rho0=1.0, gamma=4.4, p_inf=6e8, p0=1e5)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.3)
-        Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)        # scaled units
+        Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)  # scaled units
         for key in known_keys():
             library_material(key)
-
 
 
 def test_units_check_runs_while_a_step_is_traced():
     """Library materials are resolved while a step is traced: the units check evaluates the wave
     speed on constants there too (it raised a TracerArrayConversionError before)."""
     import jaxmpm
-    scene = jaxmpm.Scene(grid=jaxmpm.Grid(cells=(8,), h=1 / 8), drag=1.0,
-                         phases=(jaxmpm.Phase("water", "water", jaxmpm.Box((0.0,), (0.5,)), field=0),
-                                 jaxmpm.Phase("air", "air", jaxmpm.Box((0.5,), (1.0,)), field=1)))
+
+    scene = jaxmpm.Scene(
+        grid=jaxmpm.Grid(cells=(8,), h=1 / 8),
+        drag=1.0,
+        phases=(
+            jaxmpm.Phase("water", "water", jaxmpm.Box((0.0,), (0.5,)), field=0),
+            jaxmpm.Phase("air", "air", jaxmpm.Box((0.5,), (1.0,)), field=1),
+        ),
+    )
     params = jaxmpm.default_params(scene)
     step = jaxmpm.make_step(scene)
     s = jax.jit(lambda s: jax.lax.fori_loop(0, 3, lambda i, s: step(params, s), s))(jaxmpm.init_state(scene, params))

@@ -1,4 +1,5 @@
 """Multi-velocity multiphase: implicit exchange (E3), interface forces (E13), remap exchange (E14)."""
+
 import dataclasses
 
 import jax
@@ -23,10 +24,19 @@ def mixture(drag=None, linear_drag=None, dv0=1e-3, cells=10, continuity="off"):
     the uniform exact solution by 26% of dv0 within the run. A uniform mixture without ends
     (periodic) would not see it; the exchange solve itself is the same code either way."""
     box = Box((0.0,), (1.0,))
-    return Scene(grid=Grid(cells=(cells,), h=1.0 / cells), materials=(HEAVY, LIGHT),
-                 phases=(Phase("heavy", "heavy", box, field=0, fraction=0.5),
-                         Phase("light", "light", box, field=1, fraction=0.5, velocity=(dv0,))),
-                 drag=drag, linear_drag=linear_drag, continuity=continuity, t_end=1.0, n_out=5)
+    return Scene(
+        grid=Grid(cells=(cells,), h=1.0 / cells),
+        materials=(HEAVY, LIGHT),
+        phases=(
+            Phase("heavy", "heavy", box, field=0, fraction=0.5),
+            Phase("light", "light", box, field=1, fraction=0.5, velocity=(dv0,)),
+        ),
+        drag=drag,
+        linear_drag=linear_drag,
+        continuity=continuity,
+        t_end=1.0,
+        n_out=5,
+    )
 
 
 def rate_constants(scene, params):
@@ -66,7 +76,7 @@ def test_drag_relaxation_matches_exact_first_order_momentum_exact(kind):
         # uniform up to the edge nodes, where the particles' shift (1% of a cell) changes theta
         for sl in jaxmpm.state.phase_slices(scene):
             assert float(jnp.std(hist.v[-1, sl, 0])) < 1e-3 * dv0
-    assert exact[-1] < 0.3 * dv0                       # it relaxed substantially
+    assert exact[-1] < 0.3 * dv0  # it relaxed substantially
     print(f"{kind} drag: max relative errors at dt = 0.02, 0.01, 0.005 s: {errs}")
     if kind == "quadratic":
         # the linearised implicit step dv' = dv / (1 + k dt dv) is the exact flow map of
@@ -83,7 +93,7 @@ def test_stiff_drag_is_stable_without_overshoot():
     s0 = jaxmpm.init_state(scene, params)
     dt = 0.02
     k, _ = rate_constants(scene, params)
-    assert dt * k * 1e-3 > 1e3          # dt K / m = dt k |dv| >> 1
+    assert dt * k * 1e-3 > 1e3  # dt K / m = dt k |dv| >> 1
     final, hist = jaxmpm.simulate(scene, params, s0, dt=dt, progress=False)
     dv = np.array([relative_velocity(scene, jax.tree.map(lambda a: a[i], hist)) for i in range(len(hist.t))])
     assert np.all(dv >= 0) and np.all(np.isfinite(dv))
@@ -97,10 +107,16 @@ SOLID = jaxmpm.Material.make("solid", "linear_elastic", rho0=2000.0, E=1e7, nu=0
 
 def _expanding_block(with_far_phase):
     phases = [Phase("block", "solid", Box((0.3, 0.3), (0.6, 0.55)), field=0)]
-    if with_far_phase:   # a second field far away: the block stays alone in field 0
+    if with_far_phase:  # a second field far away: the block stays alone in field 0
         phases.append(Phase("far", "solid", Box((0.85, 0.05), (0.95, 0.15)), field=1))
-    return Scene(grid=Grid(cells=(20, 20), h=0.05), materials=(SOLID,), phases=tuple(phases),
-                 drag=1e4 if with_far_phase else None, t_end=5e-3, n_out=1)
+    return Scene(
+        grid=Grid(cells=(20, 20), h=0.05),
+        materials=(SOLID,),
+        phases=tuple(phases),
+        drag=1e4 if with_far_phase else None,
+        t_end=5e-3,
+        n_out=1,
+    )
 
 
 def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
@@ -110,8 +126,10 @@ def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
         blk = jaxmpm.state.phase_slices(scene)[0]
-        F = s0.F.at[blk].multiply(0.98)                   # the block is pre-compressed: it expands into the void
-        s0 = dataclasses.replace(s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["block"], F))
+        F = s0.F.at[blk].multiply(0.98)  # the block is pre-compressed: it expands into the void
+        s0 = dataclasses.replace(
+            s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["block"], F)
+        )
         n = jaxmpm.plan_steps(scene, params, s0, scene.t_end)
         finals.append(jaxmpm.simulate(scene, params, s0, n_steps=n)[0])
         starts.append(s0)
@@ -128,9 +146,16 @@ def test_still_mixture_of_density_ratio_1000_stays_at_rest(continuity):
     light = jaxmpm.Material.make("light", "hypoelastic", rho0=1.0, E=1.4e5 * 3 * (1 - 2 * 0.3), nu=0.3)
     box = Box((0.0, 0.0), (1.0, 1.0))
     walls = jaxmpm.Boundary(faces=tuple((f, "slip") for f in ("x_lo", "x_hi", "y_lo", "y_hi")))
-    scene = Scene(grid=Grid(cells=(8, 8), h=0.125), materials=(heavy, light), boundary=walls,
-                  phases=(Phase("water", "heavy", box, field=0, fraction=0.5), Phase("air", "light", box, field=1, fraction=0.5)),
-                  drag=1.0, continuity=continuity, t_end=1.0, n_out=1)
+    scene = Scene(
+        grid=Grid(cells=(8, 8), h=0.125),
+        materials=(heavy, light),
+        boundary=walls,
+        phases=(Phase("water", "heavy", box, field=0, fraction=0.5), Phase("air", "light", box, field=1, fraction=0.5)),
+        drag=1.0,
+        continuity=continuity,
+        t_end=1.0,
+        n_out=1,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     p0 = 1.0e5
@@ -144,8 +169,13 @@ def test_still_mixture_of_density_ratio_1000_stays_at_rest(continuity):
 
 
 def test_one_field_scene_traces_no_exchange_or_interface_code():
-    one = Scene(grid=Grid(cells=(10,), h=0.1), materials=(HEAVY,), phases=(Phase("a", "heavy", Box((0.2,), (0.6,))),),
-                drag=1.0, linear_drag=1.0)
+    one = Scene(
+        grid=Grid(cells=(10,), h=0.1),
+        materials=(HEAVY,),
+        phases=(Phase("a", "heavy", Box((0.2,), (0.6,))),),
+        drag=1.0,
+        linear_drag=1.0,
+    )
     two = mixture(drag=1.0, linear_drag=1.0)
     for scene, expect in ((one, False), (two, True)):
         params = jaxmpm.default_params(scene)
@@ -156,7 +186,11 @@ def test_one_field_scene_traces_no_exchange_or_interface_code():
             var = closed.jaxpr.invars[[i for i, a in enumerate(leaves) if a is leaf][0]]
             assert any(var in e.invars for e in closed.jaxpr.eqns) == expect
     no_if = dataclasses.replace(two, interface_forces=False)
-    n = lambda s: len(jax.make_jaxpr(jaxmpm.make_step(s))(jaxmpm.default_params(s), jaxmpm.init_state(s, jaxmpm.default_params(s))).jaxpr.eqns)
+    n = lambda s: len(
+        jax.make_jaxpr(jaxmpm.make_step(s))(
+            jaxmpm.default_params(s), jaxmpm.init_state(s, jaxmpm.default_params(s))
+        ).jaxpr.eqns
+    )
     assert n(two) > n(no_if)
 
 
@@ -179,12 +213,15 @@ def test_grad_wrt_drag_coefficient_matches_central_difference():
     np.testing.assert_allclose(g, fd, rtol=1e-5)
 
 
-@pytest.mark.parametrize("kw,match", [
-    (dict(drag=-1.0), r"effects\.drag = -1\.0 is invalid: allowed >= 0"),
-    (dict(linear_drag=-2.0), r"effects\.linear_drag = -2\.0 is invalid: allowed >= 0"),
-    (dict(drag_length=0.0), r"effects\.drag_length = 0\.0 is invalid: allowed > 0 m"),
-    (dict(shape="bspline2"), r"shape = 'bspline2' is invalid: allowed 'ddmp' or 'linear'"),
-])
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        (dict(drag=-1.0), r"effects\.drag = -1\.0 is invalid: allowed >= 0"),
+        (dict(linear_drag=-2.0), r"effects\.linear_drag = -2\.0 is invalid: allowed >= 0"),
+        (dict(drag_length=0.0), r"effects\.drag_length = 0\.0 is invalid: allowed > 0 m"),
+        (dict(shape="bspline2"), r"shape = 'bspline2' is invalid: allowed 'ddmp' or 'linear'"),
+    ],
+)
 def test_bad_multiphase_input(kw, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(mixture(drag=1.0), **kw)
@@ -192,9 +229,14 @@ def test_bad_multiphase_input(kw, match):
 
 def test_phase_in_a_field_that_does_not_exist():
     box = Box((0.0,), (1.0,))
-    with pytest.raises(ValueError, match=r"phase\.light\.field = 2 is invalid: allowed fields numbered 0\.\.1 without gaps"):
-        Scene(grid=Grid(cells=(10,), h=0.1), materials=(HEAVY, LIGHT),
-              phases=(Phase("heavy", "heavy", box, field=0), Phase("light", "light", box, field=2)))
+    with pytest.raises(
+        ValueError, match=r"phase\.light\.field = 2 is invalid: allowed fields numbered 0\.\.1 without gaps"
+    ):
+        Scene(
+            grid=Grid(cells=(10,), h=0.1),
+            materials=(HEAVY, LIGHT),
+            phases=(Phase("heavy", "heavy", box, field=0), Phase("light", "light", box, field=2)),
+        )
 
 
 @pytest.mark.parametrize("continuity", [pytest.param("off", marks=pytest.mark.slow), "transport"])
@@ -204,28 +246,43 @@ def test_glued_bar_in_two_fields_matches_one_field(continuity):
     al = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.0)
     runs = {}
     for two in (False, True):
-        scene = Scene(grid=Grid(cells=(120,), h=0.3 / 120), materials=(al,),
-                      phases=(Phase("left", "al", Box((0.05,), (0.15,)), field=0),
-                              Phase("right", "al", Box((0.15,), (0.25,)), field=1 if two else 0)),
-                      drag=1e9 if two else None, t_end=60e-6, n_out=30, **(dict(continuity=continuity) if two else {}))
+        scene = Scene(
+            grid=Grid(cells=(120,), h=0.3 / 120),
+            materials=(al,),
+            phases=(
+                Phase("left", "al", Box((0.05,), (0.15,)), field=0),
+                Phase("right", "al", Box((0.15,), (0.25,)), field=1 if two else 0),
+            ),
+            drag=1e9 if two else None,
+            t_end=60e-6,
+            n_out=30,
+            **(dict(continuity=continuity) if two else {}),
+        )
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
         F = s0.F * 0.99
-        s0 = dataclasses.replace(s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["left"], F))
+        s0 = dataclasses.replace(
+            s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["left"], F)
+        )
         _, hist = jaxmpm.simulate(scene, params, s0, progress=False)
         frames = [jax.tree.map(lambda a: a[i], hist) for i in range(len(hist.t))]
-        E = np.array([float(jaxmpm.diagnostics.kinetic_energy(f) + jaxmpm.diagnostics.strain_energy(scene, params, f))
-                      for f in frames])
+        E = np.array(
+            [
+                float(jaxmpm.diagnostics.kinetic_energy(f) + jaxmpm.diagnostics.strain_energy(scene, params, f))
+                for f in frames
+            ]
+        )
         runs[two] = (E, np.asarray(hist.stress[:, 39:41, 0, 0].mean(1)))
     (E1, s1), (E2, s2) = runs[False], runs[True]
     assert np.abs(E2 - E1).max() < 0.05 * E1[0]
     assert np.abs(E2 / E2[0] - 1).max() < 0.05
     assert np.abs(s2 - s1).max() < 0.05 * np.abs(s1).max()
-    assert np.abs(s1).max() > 0.5e9      # the cut carries the bar's stress waves
+    assert np.abs(s1).max() > 0.5e9  # the cut carries the bar's stress waves
 
 
 def test_small_solver_matches_lapack():
     from jaxmpm.fields import solve_small
+
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 4):
         B = rng.normal(size=(50, n, n))
@@ -238,6 +295,7 @@ def test_small_solver_matches_lapack():
 
 def test_three_field_exchange_conserves_momentum_and_reduces_to_two_fields():
     from jaxmpm.fields import drag_matrix, exchange
+
     rng = np.random.default_rng(1)
     n, d, dt = 7, 2, 1e-3
     m = jnp.asarray(rng.uniform(0.5, 2.0, size=(3, n)))
@@ -251,7 +309,14 @@ def test_three_field_exchange_conserves_momentum_and_reduces_to_two_fields():
     # the third field empty: the general K x K solve equals the closed form for two fields
     m3 = m.at[2].set(0.0)
     vol3 = vol.at[2].set(0.0)
-    F3 = exchange(m3, v, drag_matrix(vol3, jnp.where(vol3 > 0, m3 / jnp.where(vol3 > 0, vol3, 1), 0), v, 50.0, 0.1, 3.0), dt, V_n, 1e-30)
+    F3 = exchange(
+        m3,
+        v,
+        drag_matrix(vol3, jnp.where(vol3 > 0, m3 / jnp.where(vol3 > 0, vol3, 1), 0), v, 50.0, 0.1, 3.0),
+        dt,
+        V_n,
+        1e-30,
+    )
     F2 = exchange(m[:2], v[:2], drag_matrix(vol[:2], m[:2] / vol[:2], v[:2], 50.0, 0.1, 3.0), dt, V_n, 1e-30)
     np.testing.assert_allclose(np.asarray(F3[:2]), np.asarray(F2), rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(np.asarray(F3[2]), 0.0, atol=0)
@@ -263,9 +328,11 @@ def test_three_field_impact_conserves_momentum_and_vmaps_over_the_drag():
     conserved to round-off while the striker's changes by a large fraction; a vmapped sweep over
     C_d (the conditional becomes a select there) equals the single runs, and C_d changes the run."""
     al = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.33)
-    phases = (Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=0),
-              Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=1),
-              Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=2))
+    phases = (
+        Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=0),
+        Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=1),
+        Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=2),
+    )
     scene = Scene(grid=Grid(cells=(24, 24), h=1.0 / 24), materials=(al,), phases=phases, drag=1e3, t_end=1.0)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
@@ -285,7 +352,7 @@ def test_three_field_impact_conserves_momentum_and_vmaps_over_the_drag():
         single = run(cd)
         assert bool(jnp.all(jnp.isfinite(single.x)))
         np.testing.assert_allclose(momentum(single), p0, rtol=0, atol=1e-10 * float(np.abs(p0).max()))
-        assert abs(momentum(single, striker)[1] - p0[1]) > 0.2 * abs(p0[1])      # the blocks met
+        assert abs(momentum(single, striker)[1] - p0[1]) > 0.2 * abs(p0[1])  # the blocks met
         for name in ("x", "v", "stress"):
             a, b = np.asarray(getattr(batch, name)[i]), np.asarray(getattr(single, name))
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * float(np.abs(b).max()), err_msg=name)
@@ -300,9 +367,18 @@ def test_water_column_split_into_two_fields_stays_hydrostatic():
     water = jaxmpm.Material.make("water", "linear_fluid", rho0=1000.0, K=2.2e9)
     g, H, K = 9.81, 1.0, 2.2e9
     walls = jaxmpm.Boundary(faces=(("x_lo", "fixed"), ("x_hi", "fixed")))
-    scene = Scene(grid=Grid(cells=(40,), h=H / 40), materials=(water,), boundary=walls, gravity=(-g,), shape="linear",
-                  phases=(Phase("lower", "water", Box((0.0,), (0.5,)), field=0),
-                          Phase("upper", "water", Box((0.5,), (H,)), field=1)), drag=1.0)
+    scene = Scene(
+        grid=Grid(cells=(40,), h=H / 40),
+        materials=(water,),
+        boundary=walls,
+        gravity=(-g,),
+        shape="linear",
+        phases=(
+            Phase("lower", "water", Box((0.0,), (0.5,)), field=0),
+            Phase("upper", "water", Box((0.5,), (H,)), field=1),
+        ),
+        drag=1.0,
+    )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     p = 1000.0 * g * (H - s0.x[:, 0])
@@ -333,8 +409,12 @@ def test_volume_fractions_of_a_filled_axisymmetric_block_are_one():
     fills its interior nodes, theta = 1 at every radius (a node at radius r would read r / 1 m if
     divided by the plane support)."""
     gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=1.0, K=1e3)
-    scene = Scene(grid=Grid(cells=(20, 10), h=0.05), materials=(gas,), axisymmetric=True,
-                  phases=(Phase("gas", "gas", Box((0.0, 0.0), (1.0, 0.5))),))
+    scene = Scene(
+        grid=Grid(cells=(20, 10), h=0.05),
+        materials=(gas,),
+        axisymmetric=True,
+        phases=(Phase("gas", "gas", Box((0.0, 0.0), (1.0, 0.5))),),
+    )
     theta, total = jaxmpm.diagnostics.volume_fractions(scene, jaxmpm.init_state(scene, jaxmpm.default_params(scene)))
     inner = np.asarray(theta[0, 1:-1, 1:-1])
     np.testing.assert_allclose(inner, 1.0, rtol=2e-3)
@@ -346,8 +426,10 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
     takes no part and, without drag, evolves exactly as when it is alone in its own scene; total
     momentum is conserved. A bad field list is named."""
     gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=1.0, K=1e3)
-    blocks = (Phase("left", "solid", Box((0.2, 0.3), (0.5, 0.6)), velocity=(1.0, 0.0), field=0),
-              Phase("right", "solid", Box((0.5, 0.3), (0.8, 0.6)), velocity=(-1.0, 0.0), field=1))
+    blocks = (
+        Phase("left", "solid", Box((0.2, 0.3), (0.5, 0.6)), velocity=(1.0, 0.0), field=0),
+        Phase("right", "solid", Box((0.5, 0.3), (0.8, 0.6)), velocity=(-1.0, 0.0), field=1),
+    )
     cloud = Phase("cloud", "gas", Box((0.3, 0.2), (0.7, 0.7)), velocity=(0.0, 0.5), field=2, fraction=0.3)
     grid = Grid(cells=(20, 20), h=0.05)
     three = Scene(grid=grid, materials=(SOLID, gas), phases=blocks + (cloud,), interface_forces=(0, 1), t_end=5e-3)
@@ -356,7 +438,11 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
     for scene in (three, alone):
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
-        dt = 0.3 * float(jaxmpm.cfl_limit(three, jaxmpm.default_params(three), jaxmpm.init_state(three, jaxmpm.default_params(three))))
+        dt = 0.3 * float(
+            jaxmpm.cfl_limit(
+                three, jaxmpm.default_params(three), jaxmpm.init_state(three, jaxmpm.default_params(three))
+            )
+        )
         out.append((s0, jaxmpm.simulate(scene, params, s0, dt=dt, n_steps=40, t_end=40 * dt, n_out=1)[0]))
     (s0, f3), (_, f1) = out
     cl = jaxmpm.state.phase_slices(three)[2]
@@ -368,8 +454,11 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
     assert three.pressure_fields == (0, 1)
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(three)) == three
     for bad in ((0,), (0, 3), ("a", 1)):
-        with pytest.raises(ValueError, match=r"effects\.interface_forces = .* allowed true \| false \| a list of >= 2 "
-                                             r"velocity fields in 0\.\.2"):
+        with pytest.raises(
+            ValueError,
+            match=r"effects\.interface_forces = .* allowed true \| false \| a list of >= 2 "
+            r"velocity fields in 0\.\.2",
+        ):
             three.replace(interface_forces=bad)
 
 
@@ -393,17 +482,27 @@ def test_impact_grouping_two_fields_converge_to_one_field_as_the_drag_grows():
         hist, E, P, gap, va, vb = run_blocks(scene)
         t, s = np.asarray(hist.t), contact_stress(hist, scene)
         on = t[s > 0.5 * float(np.max(s))]
-        runs[cd] = dict(plateau=float(np.median(s[(t > 25e-6) & (t < 45e-6)])), duration=on.max() - on.min(),
-                        v=np.array([va[-1], vb[-1]]), E=E / E[0] - 1)
+        runs[cd] = dict(
+            plateau=float(np.median(s[(t > 25e-6) & (t < 45e-6)])),
+            duration=on.max() - on.min(),
+            v=np.array([va[-1], vb[-1]]),
+            E=E / E[0] - 1,
+        )
         np.testing.assert_allclose(P, P[0], rtol=1e-12)
         assert runs[cd]["E"].max() < 0.002
     one = runs[None]
-    err = {cd: (abs(runs[cd]["plateau"] / one["plateau"] - 1), abs(runs[cd]["duration"] / one["duration"] - 1),
-                np.abs(runs[cd]["v"] - one["v"]).max() / 200.0) for cd in (1e2, 1e4, 1e6)}
+    err = {
+        cd: (
+            abs(runs[cd]["plateau"] / one["plateau"] - 1),
+            abs(runs[cd]["duration"] / one["duration"] - 1),
+            np.abs(runs[cd]["v"] - one["v"]).max() / 200.0,
+        )
+        for cd in (1e2, 1e4, 1e6)
+    }
     print({cd: tuple(round(float(x), 4) for x in e) for cd, e in err.items()})
     assert all(x < 0.02 for x in err[1e6])
     assert all(e6 <= e2 for e6, e2 in zip(err[1e6], err[1e2]))
-    assert err[1e2][2] > 0.2                     # at weak drag the fields are not locked: they rebound apart
+    assert err[1e2][2] > 0.2  # at weak drag the fields are not locked: they rebound apart
     for cd in (None, 1e4, 1e6):
         assert abs(runs[cd]["E"][-1]) < 0.05
     assert -0.3 < runs[1e2]["E"][-1] < runs[1e6]["E"][-1]
@@ -417,10 +516,19 @@ def gas_and_water(two_fields, continuity="auto", shape="ddmp"):
     water = jaxmpm.Material.make("water", "linear_fluid", rho0=1000.0, K=2.2e9)
     wall = jaxmpm.Boundary(faces=(("x_lo", "fixed"),))
     kw = dict(continuity=continuity) if two_fields else {}
-    return Scene(grid=Grid(cells=(100,), h=0.01), materials=(gas, water), boundary=wall, shape=shape,
-                 phases=(Phase("gas", "gas", Box((0.0,), (0.4,)), field=0),
-                         Phase("water", "water", Box((0.4,), (0.6,)), field=1 if two_fields else 0)),
-                 t_end=4e-3, n_out=40, **kw)
+    return Scene(
+        grid=Grid(cells=(100,), h=0.01),
+        materials=(gas, water),
+        boundary=wall,
+        shape=shape,
+        phases=(
+            Phase("gas", "gas", Box((0.0,), (0.4,)), field=0),
+            Phase("water", "water", Box((0.4,), (0.6,)), field=1 if two_fields else 0),
+        ),
+        t_end=4e-3,
+        n_out=40,
+        **kw,
+    )
 
 
 def push_water(continuity, shape):
@@ -434,8 +542,12 @@ def push_water(continuity, shape):
         s0 = jaxmpm.init_state(scene, params)
         gas_sl, water_sl = jaxmpm.state.phase_slices(scene)
         J = 1 - p_gas / K_gas
-        s0 = dataclasses.replace(s0, F=s0.F.at[gas_sl].set(J), stress=s0.stress.at[gas_sl].set(-p_gas),
-                                 volume=s0.volume.at[gas_sl].multiply(J))
+        s0 = dataclasses.replace(
+            s0,
+            F=s0.F.at[gas_sl].set(J),
+            stress=s0.stress.at[gas_sl].set(-p_gas),
+            volume=s0.volume.at[gas_sl].multiply(J),
+        )
         _, hist = jaxmpm.simulate(scene, params, s0, progress=False)
         x, v, m = (np.asarray(a) for a in (hist.x[..., 0], hist.v[..., 0], hist.mass))
         near = x[:, gas_sl] > x[:, water_sl].min(1)[:, None] - 0.05
@@ -443,9 +555,14 @@ def push_water(continuity, shape):
     return out[False], out[True]
 
 
-@pytest.mark.parametrize("continuity,shape,tol", [("transport", "ddmp", 0.005),
-                                                   pytest.param("transport", "linear", 0.005, marks=pytest.mark.slow),
-                                                   ("off", "linear", 0.02)])
+@pytest.mark.parametrize(
+    "continuity,shape,tol",
+    [
+        ("transport", "ddmp", 0.005),
+        pytest.param("transport", "linear", 0.005, marks=pytest.mark.slow),
+        ("off", "linear", 0.02),
+    ],
+)
 def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(continuity, shape, tol):
     """10 kPa of gas pushes 0.2 m of water for 4 ms (3.4 gas transit times). The water's momentum
     at every output within `tol` of the one-field run's largest (PHYSICS 2.1: 0.5%; measured 0.04%
@@ -453,9 +570,11 @@ def test_gas_pushing_water_without_drag_matches_one_field_without_ringing(contin
     pressures, continuity = 'off'), and the gas within 5 cells of the interface no faster than 2x
     the one-field run's (0.24 against 0.28 m/s)."""
     one, two = push_water(continuity, shape)
-    print(f"water momentum ratio {two['p'][-1] / one['p'][-1]:.4f}; gas peak near the interface "
-          f"{two['gas']:.3f} vs {one['gas']:.3f} m/s")
-    assert one["p"][-1] > 30.0                                  # the water was pushed (about 37 N s / m^2)
+    print(
+        f"water momentum ratio {two['p'][-1] / one['p'][-1]:.4f}; gas peak near the interface "
+        f"{two['gas']:.3f} vs {one['gas']:.3f} m/s"
+    )
+    assert one["p"][-1] > 30.0  # the water was pushed (about 37 N s / m^2)
     np.testing.assert_allclose(two["p"], one["p"], rtol=0, atol=tol * np.abs(one["p"]).max())
     assert two["gas"] < 2 * one["gas"]
 

@@ -1,5 +1,6 @@
 """Patch test (PHYSICS 2.2, rules R1-R3): a linear nodal velocity field gives the exact velocity
 gradient at every particle, including particles next to a fixed wall and at a free surface."""
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -17,10 +18,15 @@ def _scene(dim, shape, wall):
     cells = (12, 9, 7)[:dim]
     hi = (0.83, 0.47, 0.55)[:dim]
     faces = (("x_lo", "fixed"),) if wall else ()
-    lo = (0.0,) + (0.13, 0.21)[:dim - 1] if wall else (0.17, 0.13, 0.21)[:dim]
+    lo = (0.0,) + (0.13, 0.21)[: dim - 1] if wall else (0.17, 0.13, 0.21)[:dim]
     mat = jaxmpm.Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.25)
-    return Scene(grid=Grid(cells=cells, h=0.1), phases=(Phase("block", "m", Box(lo, hi), ppc=2),),
-                 materials=(mat,), shape=shape, boundary=Boundary(faces=faces))
+    return Scene(
+        grid=Grid(cells=cells, h=0.1),
+        phases=(Phase("block", "m", Box(lo, hi), ppc=2),),
+        materials=(mat,),
+        shape=shape,
+        boundary=Boundary(faces=faces),
+    )
 
 
 def _nodal_positions(grid):
@@ -37,12 +43,12 @@ def test_linear_field_gives_exact_gradient(dim, shape, wall):
     state = jaxmpm.init_state(scene, params)
     rng = np.random.default_rng(dim)
     A = rng.normal(size=(dim, dim))
-    if wall:   # a field that a fixed wall at x = 0 admits: v = A[:, 0] x_0
+    if wall:  # a field that a fixed wall at x = 0 admits: v = A[:, 0] x_0
         A[:, 1:] = 0.0
     b = np.zeros(dim) if wall else rng.normal(size=dim)
     xn = _nodal_positions(scene.grid)
     lay = Layout.of(scene)
-    v = jnp.asarray(xn @ A.T + b)[None]                       # (1, n_nodes, d)
+    v = jnp.asarray(xn @ A.T + b)[None]  # (1, n_nodes, d)
     v = _apply_bc(lay, v)
     st = stencil(scene, state.x)
     vol = scatter_weighted(st, None, state.volume[:, None], 1, lay.n_nodes)[..., 0] if shape == "ddmp" else None
@@ -63,8 +69,13 @@ def test_axisymmetric_linear_field_gives_exact_gradient_and_hoop_rate(shape, on_
     free surfaces; the volumes per radian are r dr dz."""
     mat = jaxmpm.Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.25)
     lo = (0.0, 0.13) if on_axis else (0.23, 0.13)
-    scene = Scene(grid=Grid(cells=(10, 10), h=0.1), phases=(Phase("block", "m", Box(lo, (0.77, 0.81)), ppc=2),),
-                  materials=(mat,), shape=shape, axisymmetric=True)
+    scene = Scene(
+        grid=Grid(cells=(10, 10), h=0.1),
+        phases=(Phase("block", "m", Box(lo, (0.77, 0.81)), ppc=2),),
+        materials=(mat,),
+        shape=shape,
+        axisymmetric=True,
+    )
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
     np.testing.assert_allclose(np.asarray(state.volume), np.asarray(state.x[:, 0]) * 0.05**2, rtol=1e-12)

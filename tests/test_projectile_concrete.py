@@ -1,5 +1,6 @@
 """Steel projectile through water or air into concrete (built-in `projectile_concrete`, 2D
 axisymmetric; fluid in its own velocity field, coupled by the exchange drag)."""
+
 import functools
 
 import jax
@@ -32,7 +33,7 @@ def test_projectile_in_water_conserves_mass_and_momentum_before_it_reaches_the_b
     assert float(final.mass.sum()) == float(s0.mass.sum())
     pz = lambda s: float((s.mass * s.v[:, 1]).sum())
     assert pz(final) == pytest.approx(pz(s0), rel=0.01)
-    early = jax.tree.map(lambda a: a[1], history)                 # the first output, at 0.83 us
+    early = jax.tree.map(lambda a: a[1], history)  # the first output, at 0.83 us
     water = next(p for p in scene.phases if p.name == "water")
     p0, R = scene.material(water).as_dict()["p0"], scene.grid.hi[0]
     assert scene.boundary.kind(1, "hi") == "slip" and scene.grid.origin[0] == 0.0
@@ -50,4 +51,4 @@ def test_projectile_decelerates_more_in_water_than_in_air():
         print(f"projectile_concrete in {f}: {m['speed'][-1]:.0f} m/s, {m['depth'][-1] * 1e3:.1f} mm deep at 60 us")
     assert res["water"]["speed"][-1] < res["air"]["speed"][-1] - 10.0
     assert res["water"]["depth"][-1] < res["air"]["depth"][-1]
-    assert res["air"]["speed"][3] == pytest.approx(500.0, rel=1e-3)           # 15 us: air has not slowed it
+    assert res["air"]["speed"][3] == pytest.approx(500.0, rel=1e-3)  # 15 us: air has not slowed it

@@ -1,5 +1,6 @@
 """Restart files: a resumed run is bit-identical to an uninterrupted one; an interrupted write
 leaves the previous restart file readable."""
+
 import dataclasses
 import warnings
 
@@ -52,7 +53,7 @@ def test_resumed_run_is_bit_identical(small, tmp_path):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     np.testing.assert_array_equal(np.asarray(hist.x), np.asarray(hist_full.x))
     np.testing.assert_array_equal(np.asarray(hist.t), np.asarray(hist_full.t))
-    with warnings.catch_warnings():      # a complete run resumed: its saved results, no progress bar to clamp
+    with warnings.catch_warnings():  # a complete run resumed: its saved results, no progress bar to clamp
         warnings.simplefilter("error")
         _, _, final2, hist2 = restart.resume(path, progress=True)
     np.testing.assert_array_equal(np.asarray(final2.x), np.asarray(full.x))
@@ -73,7 +74,7 @@ def test_interrupted_write_keeps_the_previous_restart_file(small, tmp_path, monk
         restart.save(path, scene, params, s0, [], t0=0.0, t_end=1.0, n_out=1, next_out=0, chunk=5, dt=None)
     after = restart.load(path)
     np.testing.assert_array_equal(np.asarray(after["state"].x), np.asarray(before["state"].x))
-    assert [p.name for p in tmp_path.iterdir()] == ["run.restart.h5"]      # no temporary file left
+    assert [p.name for p in tmp_path.iterdir()] == ["run.restart.h5"]  # no temporary file left
 
 
 def test_an_existing_restart_file_is_never_overwritten_silently(small, tmp_path):
@@ -103,15 +104,28 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     real = restart.save
     calls = {"n": 0}
 
-    def save_then_stop(*a, **k):       # Ctrl-C after the third save
+    def save_then_stop(*a, **k):  # Ctrl-C after the third save
         real(*a, **k)
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt
 
     monkeypatch.setattr(restart, "save", save_then_stop)
-    argv = ["run", "--t-end", "1.5", "--n-out", "3", "--opt", "resolution=0.25", "--out", str(out), "--no-progress", "--x64",
-            "--restart-every", "2"]
+    argv = [
+        "run",
+        "--t-end",
+        "1.5",
+        "--n-out",
+        "3",
+        "--opt",
+        "resolution=0.25",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--x64",
+        "--restart-every",
+        "2",
+    ]
     capsys.readouterr()
     assert cli.main(argv) == 130
     err = capsys.readouterr().err
@@ -119,19 +133,21 @@ def test_cli_resume_completes_an_interrupted_run(tmp_path, monkeypatch, capsys):
     assert f"jaxmpm run --resume {out}" in err and "Traceback" not in err
     monkeypatch.setattr(restart, "save", real)
     assert not (out / "elastic_impact.h5").exists()
-    assert cli.main(argv) == 2                        # the same command again: it points to --resume, not --overwrite alone
+    assert cli.main(argv) == 2  # the same command again: it points to --resume, not --overwrite alone
     err = capsys.readouterr().err
     assert f"continue an interrupted run with `jaxmpm run --resume {out}`" in err and "discards it" in err
-    assert cli.main(["run", "--resume", str(out / "elastic_impact.restart.h5"), "--no-progress"]) == 0   # the file, named
+    assert (
+        cli.main(["run", "--resume", str(out / "elastic_impact.restart.h5"), "--no-progress"]) == 0
+    )  # the file, named
     _, history = io.read(out / "elastic_impact.h5")
     scene = dataclasses.replace(jaxmpm.load_scene("elastic_impact", resolution=0.25), t_end=1.5, n_out=3)
     params = jaxmpm.default_params(scene)
     chunk = restart.load(out / "elastic_impact.restart.h5")["chunk"]
     _, full = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), progress=False, chunk=chunk)
     np.testing.assert_array_equal(np.asarray(history.x), np.asarray(full.x))
-    assert cli.main(["run", "--resume", str(out), "--no-progress"]) == 2           # complete: nothing to resume
+    assert cli.main(["run", "--resume", str(out), "--no-progress"]) == 2  # complete: nothing to resume
     assert "is complete (t_end = 1.5 s reached, 3 outputs): nothing to resume" in capsys.readouterr().err
-    assert cli.main(["run", "--resume", str(tmp_path), "--no-progress"]) == 2     # no restart file there
+    assert cli.main(["run", "--resume", str(tmp_path), "--no-progress"]) == 2  # no restart file there
     assert "expected one *.restart.h5" in capsys.readouterr().err
     assert cli.main(["run", "--resume", str(tmp_path / "nowhere"), "--no-progress"]) == 2
     assert f"--resume '{tmp_path / 'nowhere'}' does not exist" in capsys.readouterr().err
@@ -151,8 +167,9 @@ def _leaf(tree, name):
     """Index of the leaf `name` (e.g. ".v") in tree's flattening: the restart file's dataset number."""
     import jax
 
-    return next(i for i, (k, _) in enumerate(jax.tree_util.tree_flatten_with_path(tree)[0])
-                if jax.tree_util.keystr(k) == name)
+    return next(
+        i for i, (k, _) in enumerate(jax.tree_util.tree_flatten_with_path(tree)[0]) if jax.tree_util.keystr(k) == name
+    )
 
 
 def test_load_names_a_file_that_is_not_a_restart_file(small, tmp_path):
@@ -166,8 +183,11 @@ def test_load_names_a_file_that_is_not_a_restart_file(small, tmp_path):
     cut = tmp_path / "cut.restart.h5"
     cut.write_bytes(good.read_bytes()[:3000])
     out, _ = io.write(tmp_path / "out.h5", scene, s0)
-    for bad, what in ((text, "is not a readable HDF5 file"), (cut, "is not a readable HDF5 file"),
-                      (out, "is a jaxmpm output file, not a restart file")):
+    for bad, what in (
+        (text, "is not a readable HDF5 file"),
+        (cut, "is not a readable HDF5 file"),
+        (out, "is a jaxmpm output file, not a restart file"),
+    ):
         for fn in (restart.load, restart.dtype):
             with pytest.raises(ValueError, match=what) as e:
                 fn(bad)
@@ -177,13 +197,16 @@ def test_load_names_a_file_that_is_not_a_restart_file(small, tmp_path):
     assert restart.dtype(good) == np.asarray(s0.x).dtype
 
 
-@pytest.mark.parametrize("edit, what", [
-    (lambda f: f.attrs.__delitem__("t0"), "it has no attribute 't0'"),
-    (lambda f: f.__delitem__("history"), "it has no group /history"),
-    (lambda f: f.__delitem__("scene"), "it has no /scene dataset"),
-    (lambda f: f["state"].__delitem__("0003"), r"it has no dataset /state/0003 \(state.mass\)"),
-    (lambda f: f["history"].move("0000", "0007"), r"/history holds \['0007'\]"),
-])
+@pytest.mark.parametrize(
+    "edit, what",
+    [
+        (lambda f: f.attrs.__delitem__("t0"), "it has no attribute 't0'"),
+        (lambda f: f.__delitem__("history"), "it has no group /history"),
+        (lambda f: f.__delitem__("scene"), "it has no /scene dataset"),
+        (lambda f: f["state"].__delitem__("0003"), r"it has no dataset /state/0003 \(state.mass\)"),
+        (lambda f: f["history"].move("0000", "0007"), r"/history holds \['0007'\]"),
+    ],
+)
 def test_load_names_what_is_missing(small, tmp_path, edit, what):
     path = _saved(small, tmp_path / "r.restart.h5")
     with h5py.File(path, "r+") as f:
@@ -239,12 +262,21 @@ def test_load_checks_params_and_state_values(small, tmp_path):
         restart.load(path)
 
 
-@pytest.mark.parametrize("name, value, allowed", [
-    ("t_end", np.nan, "a finite time > t0"), ("t_end", -1.0, "a finite time > t0"), ("t0", np.inf, "a finite time"),
-    ("next_out", 5, r"an integer in \[0, n_out = 3\]"), ("next_out", -1, r"an integer in \[0"),
-    ("chunk", 0, "an integer >= 1"), ("chunk", 2.5, "an integer"), ("n_out", 0, "an integer >= 1"),
-    ("dt", -1.0, "a finite time step > 0 s, or NaN"), ("t_end", "soon", "a number"),
-])
+@pytest.mark.parametrize(
+    "name, value, allowed",
+    [
+        ("t_end", np.nan, "a finite time > t0"),
+        ("t_end", -1.0, "a finite time > t0"),
+        ("t0", np.inf, "a finite time"),
+        ("next_out", 5, r"an integer in \[0, n_out = 3\]"),
+        ("next_out", -1, r"an integer in \[0"),
+        ("chunk", 0, "an integer >= 1"),
+        ("chunk", 2.5, "an integer"),
+        ("n_out", 0, "an integer >= 1"),
+        ("dt", -1.0, "a finite time step > 0 s, or NaN"),
+        ("t_end", "soon", "a number"),
+    ],
+)
 def test_load_checks_the_driver_attributes(small, tmp_path, name, value, allowed):
     """Today's failures: t_end = nan or next_out > n_out 'finished' at t = 0; chunk = 0 stalled."""
     path = _saved(small, tmp_path / "r.restart.h5")

@@ -1,5 +1,6 @@
 """Long-rod penetration (built-in `rod_penetration`, 2D axisymmetric): tungsten-alloy rod, L/D = 10,
 D = 7.5 mm, into semi-infinite steel at 2 km/s, checked against the Alekseevskii-Tate model."""
+
 import functools
 
 import jax
@@ -7,8 +8,14 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.scenes.penetration import (cavity_expansion_pressure, penetration_history, penetration_measures,
-                                       steady_penetration_rate, tate_penetration_speed, tate_strengths)
+from jaxmpm.scenes.penetration import (
+    cavity_expansion_pressure,
+    penetration_history,
+    penetration_measures,
+    steady_penetration_rate,
+    tate_penetration_speed,
+    tate_strengths,
+)
 from jaxmpm.state import phase_slices
 
 
@@ -32,9 +39,10 @@ def test_tate_speed_solves_the_interface_stress_balance_and_has_the_hydrodynamic
     v = np.array([1500.0, 2000.0, 3000.0])
     u = tate_penetration_speed(v, rho_p, rho_t, y_p, r_t)
     np.testing.assert_allclose(0.5 * rho_p * (v - u) ** 2 + y_p, 0.5 * rho_t * u**2 + r_t, rtol=1e-12)
-    np.testing.assert_allclose(tate_penetration_speed(v, rho_p, rho_t, 1e9, 1e9), v / (1 + np.sqrt(rho_t / rho_p)),
-                               rtol=1e-12)
-    assert float(tate_penetration_speed(100.0, rho_p, rho_t, y_p, r_t)) == 0.0   # the target stops a slow rod
+    np.testing.assert_allclose(
+        tate_penetration_speed(v, rho_p, rho_t, 1e9, 1e9), v / (1 + np.sqrt(rho_t / rho_p)), rtol=1e-12
+    )
+    assert float(tate_penetration_speed(100.0, rho_p, rho_t, y_p, r_t)) == 0.0  # the target stops a slow rod
     y, g = 1.2e9, 77.5e9
     assert cavity_expansion_pressure(y, g) == pytest.approx(2 / 3 * y * (1 + np.log(2 * g / y)), rel=1e-12)
 
@@ -49,7 +57,7 @@ def check_conserved_before_the_back_wall(scene, s0, final):
     assert float(final.mass.sum()) == float(s0.mass.sum())
     assert momentum_z(final) == pytest.approx(momentum_z(s0), rel=1e-5)
     rod = phase_slices(scene)[0]
-    assert float(final.x[rod, 1].min()) < -8e-3          # it is penetrating: more than a diameter deep
+    assert float(final.x[rod, 1].min()) < -8e-3  # it is penetrating: more than a diameter deep
 
 
 def test_one_and_two_velocity_fields_differ_where_rod_and_target_meet():
@@ -79,7 +87,7 @@ def test_steady_penetration_rate_within_5_percent_of_tate():
     late = m["t"] > 0.3 * m["t"][-1]
     erosion = -np.polyfit(m["t"][late], m["rod_length"][late], 1)[0]
     assert erosion == pytest.approx(m["tail_speed"][late].mean() - u, rel=0.02)
-    assert 0 < m["tail_speed"][0] - m["tail_speed"][-1] < 0.1 * m["tail_speed"][0]   # slowed, a little
+    assert 0 < m["tail_speed"][0] - m["tail_speed"][-1] < 0.1 * m["tail_speed"][0]  # slowed, a little
     assert tate_strengths() == pytest.approx((1.669e9, 4.747e9), rel=1e-3)
 
 
@@ -101,7 +109,9 @@ def test_groupings_with_air_differ_and_the_air_moves_apart_from_the_rod():
         x, v = np.asarray(final.x), np.asarray(final.v)
         beside = (x[air, 0] < 0.5 * 7.5e-3 + 2 * scene.grid.h) & (x[air, 1] > 0.0) & (x[air, 1] < x[rod, 1].max())
         res[f] = (penetration_measures(scene, final)["depth"], -v[air][beside, 1].mean(), -v[rod, 1].mean())
-        print(f"fields {f}: depth {res[f][0] * 1e3:.2f} mm, air beside the rod {res[f][1]:.0f} m/s, rod {res[f][2]:.0f} m/s")
+        print(
+            f"fields {f}: depth {res[f][0] * 1e3:.2f} mm, air beside the rod {res[f][1]:.0f} m/s, rod {res[f][2]:.0f} m/s"
+        )
         assert 0.0 < res[f][1] < 0.5 * res[f][2]
     assert res[3][0] > res[2][0] + 0.5 * 1.5e-3
     with pytest.raises(ValueError, match=r"air in the solids' velocity field is unstable.*allowed fields = 2 \| 3"):

@@ -1,5 +1,6 @@
 """Tungsten rod into a steel / CFRP laminate / steel sandwich (built-in `sandwich_target`, 2D
 axisymmetric, transversely isotropic core)."""
+
 import jax
 import numpy as np
 import pytest
@@ -22,11 +23,11 @@ def test_coarse_sandwich_conserves_mass_and_momentum_and_slows_the_rod():
     pz = lambda s: float((s.mass * s.v[:, 1]).sum())
     assert pz(final) == pytest.approx(pz(s0), rel=1e-9)
     energy = lambda s: float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
-    assert energy(s0) * (1 - 0.01) < energy(final) < energy(s0) * (1 + 1e-3)   # measured -0.1%: never a gain
+    assert energy(s0) * (1 - 0.01) < energy(final) < energy(s0) * (1 + 1e-3)  # measured -0.1%: never a gain
     rod, sheets = phase_slices(scene)[0], phase_slices(scene)[2]
     v_rod = float((final.mass[rod] * final.v[rod, 1]).sum() / final.mass[rod].sum())
     assert -750.0 < v_rod < -400.0
-    assert float(final.x[sheets, 1].min()) < float(s0.x[sheets, 1].min()) - 0.5 * scene.grid.h   # the back face
+    assert float(final.x[sheets, 1].min()) < float(s0.x[sheets, 1].min()) - 0.5 * scene.grid.h  # the back face
 
 
 def test_laminate_core_is_stiffer_in_its_plane_than_through_its_thickness():
@@ -39,7 +40,7 @@ def test_laminate_core_is_stiffer_in_its_plane_than_through_its_thickness():
     c = dict(laminate_material().constants)
     C, _ = voigt_stiffness({k: jax.numpy.asarray(v) for k, v in c.items()})
     assert float(C[1, 1]) > 3 * float(C[0, 0])
-    assert np.isclose(c["fibre_theta"], np.pi / 2) and c["fibre_phi"] == 0.0      # axis 1 = z in (r, z, theta)
+    assert np.isclose(c["fibre_theta"], np.pi / 2) and c["fibre_phi"] == 0.0  # axis 1 = z in (r, z, theta)
 
 
 @pytest.mark.slow
@@ -58,7 +59,7 @@ def test_sandwich_in_two_and_three_fields_keeps_momentum_and_energy(fields):
     assert pz(final) == pytest.approx(pz(s0), rel=1e-9)
     energy = lambda s: float(jaxmpm.diagnostics.kinetic_energy(s) + jaxmpm.diagnostics.internal_energy(s))
     print(f"{fields} fields: energy {energy(final) / energy(s0) - 1:+.4f}")
-    assert energy(s0) * (1 - 0.06) < energy(final) < energy(s0) * (1 + 1e-3)   # dissipated, never gained
+    assert energy(s0) * (1 - 0.06) < energy(final) < energy(s0) * (1 + 1e-3)  # dissipated, never gained
     rod = phase_slices(scene)[0]
     v_rod = float((final.mass[rod] * final.v[rod, 1]).sum() / final.mass[rod].sum())
     assert -750.0 < v_rod < -400.0

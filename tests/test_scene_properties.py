@@ -1,5 +1,6 @@
 """Property-based checks of scene input (hypothesis): random valid scenes run with finite results;
 random malformed scene files always give a ValueError that names a field, never another exception."""
+
 import copy
 import dataclasses
 
@@ -13,19 +14,48 @@ import jaxmpm
 from jaxmpm.scenefile import scene_from_dict, scene_from_toml
 
 BASE = {
-    "name": "prop", "t_end": 1e-3,
+    "name": "prop",
+    "t_end": 1e-3,
     "grid": {"cells": [8, 8], "h": 0.125},
     "materials": {"m": {"model": "linear_elastic", "rho0": 1000.0, "E": 1e6, "nu": 0.3}},
     "effects": {"gravity": [0.0, -9.81]},
-    "phase": [{"name": "a", "material": "m", "velocity": [1.0, 0.0],
-               "geometry": {"type": "box", "lo": [0.25, 0.25], "hi": [0.5, 0.5]}}],
+    "phase": [
+        {
+            "name": "a",
+            "material": "m",
+            "velocity": [1.0, 0.0],
+            "geometry": {"type": "box", "lo": [0.25, 0.25], "hi": [0.5, 0.5]},
+        }
+    ],
 }
 
-FIELD_WORDS = ("grid", "phase", "materials", "effects", "boundary", "output", "cfl", "t_end", "shape",
-               "transfer", "name", "description", "geometry", "TOML", "key")
+FIELD_WORDS = (
+    "grid",
+    "phase",
+    "materials",
+    "effects",
+    "boundary",
+    "output",
+    "cfl",
+    "t_end",
+    "shape",
+    "transfer",
+    "name",
+    "description",
+    "geometry",
+    "TOML",
+    "key",
+)
 
-junk = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True),
-                 st.text(max_size=8), st.lists(st.integers(-5, 5), max_size=4), st.dictionaries(st.text(max_size=5), st.integers(), max_size=2))
+junk = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(10**6), 10**6),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+    st.lists(st.integers(-5, 5), max_size=4),
+    st.dictionaries(st.text(max_size=5), st.integers(), max_size=2),
+)
 
 
 def _paths(d, prefix=()):
@@ -59,7 +89,9 @@ def _delete(d, path):
         node.pop(path[-1])
 
 
-@pytest.mark.filterwarnings("ignore:materials\\.m.*(faster|denser) than any real material:UserWarning")   # random constants
+@pytest.mark.filterwarnings(
+    "ignore:materials\\.m.*(faster|denser) than any real material:UserWarning"
+)  # random constants
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(path=st.sampled_from(PATHS), value=junk, action=st.sampled_from(["replace", "delete", "add"]))
 def test_malformed_scene_dict_gives_a_value_error_naming_a_field(path, value, action):
@@ -82,11 +114,30 @@ def test_malformed_scene_dict_gives_a_value_error_naming_a_field(path, value, ac
     # a mutation that still describes a valid scene may build: that is fine too
 
 
-REQUIRED = [("grid",), ("grid", "cells"), ("grid", "h"), ("materials",), ("materials", "m", "rho0"),
-            ("materials", "m", "E"), ("materials", "m", "model"), ("phase",), ("phase", 0, "material"),
-            ("phase", 0, "geometry"), ("phase", 0, "geometry", "lo")]
-NUMERIC = [("grid", "h"), ("grid", "cells"), ("materials", "m", "rho0"), ("materials", "m", "E"), ("materials", "m", "nu"),
-           ("t_end",), ("phase", 0, "velocity"), ("phase", 0, "geometry", "lo"), ("effects", "gravity")]
+REQUIRED = [
+    ("grid",),
+    ("grid", "cells"),
+    ("grid", "h"),
+    ("materials",),
+    ("materials", "m", "rho0"),
+    ("materials", "m", "E"),
+    ("materials", "m", "model"),
+    ("phase",),
+    ("phase", 0, "material"),
+    ("phase", 0, "geometry"),
+    ("phase", 0, "geometry", "lo"),
+]
+NUMERIC = [
+    ("grid", "h"),
+    ("grid", "cells"),
+    ("materials", "m", "rho0"),
+    ("materials", "m", "E"),
+    ("materials", "m", "nu"),
+    ("t_end",),
+    ("phase", 0, "velocity"),
+    ("phase", 0, "geometry", "lo"),
+    ("effects", "gravity"),
+]
 
 
 @pytest.mark.parametrize("path", REQUIRED, ids=lambda p: ".".join(map(str, p)))
@@ -98,9 +149,16 @@ def test_a_scene_dict_missing_a_required_entry_is_refused_naming_it(path):
         scene_from_dict(d)
 
 
-@pytest.mark.parametrize("path, value", [(p, v) for p in NUMERIC for v in ("abc", None, {"a": 1}, True)
-                                         if not (v is None and p[-1] in ("velocity", "gravity"))],   # None: left out
-                         ids=lambda x: ".".join(map(str, x)) if isinstance(x, tuple) else repr(x))
+@pytest.mark.parametrize(
+    "path, value",
+    [
+        (p, v)
+        for p in NUMERIC
+        for v in ("abc", None, {"a": 1}, True)
+        if not (v is None and p[-1] in ("velocity", "gravity"))
+    ],  # None: left out
+    ids=lambda x: ".".join(map(str, x)) if isinstance(x, tuple) else repr(x),
+)
 def test_a_scene_dict_with_a_non_number_where_a_number_belongs_is_refused(path, value):
     d = copy.deepcopy(BASE)
     _set(d, path, value)
@@ -115,8 +173,7 @@ def _table(path):
     return isinstance(node, dict)
 
 
-@pytest.mark.parametrize("path", [p for p in PATHS + [()] if _table(p)],
-                         ids=lambda p: ".".join(map(str, p)) or "top")
+@pytest.mark.parametrize("path", [p for p in PATHS + [()] if _table(p)], ids=lambda p: ".".join(map(str, p)) or "top")
 def test_an_unknown_key_anywhere_in_a_scene_dict_is_refused_naming_it(path):
     d = copy.deepcopy(BASE)
     node = d
@@ -141,9 +198,15 @@ BOXES = (((0.25, 0.3), (0.5, 0.6)), ((0.35, 0.25), (0.65, 0.45)), ((0.2, 0.5), (
 
 
 @settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(box=st.sampled_from(BOXES), vel=st.tuples(st.floats(-50, 50), st.floats(-50, 50)), E=st.floats(1e5, 1e9),
-       nu=st.floats(-0.5, 0.45), rho=st.floats(10.0, 2e4), shape=st.sampled_from(["ddmp", "linear"]),
-       fields=st.sampled_from([1, 2]))
+@given(
+    box=st.sampled_from(BOXES),
+    vel=st.tuples(st.floats(-50, 50), st.floats(-50, 50)),
+    E=st.floats(1e5, 1e9),
+    nu=st.floats(-0.5, 0.45),
+    rho=st.floats(10.0, 2e4),
+    shape=st.sampled_from(["ddmp", "linear"]),
+    fields=st.sampled_from([1, 2]),
+)
 def test_random_valid_scenes_run_20_steps_finite(box, vel, E, nu, rho, shape, fields):
     """Geometry, shape and grouping pick the compiled step (a few cached); material constants and
     velocities are Params and State, so each example runs without recompiling. (A body that leaves
@@ -165,10 +228,19 @@ _CACHE = {}
 
 def _scene(box, shape, fields):
     mat = jaxmpm.Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
-    phases = (jaxmpm.Phase("a", "m", jaxmpm.Box(*box)),
-              jaxmpm.Phase("b", "m", jaxmpm.Box((0.2, 0.0), (0.8, 0.125)), field=fields - 1))
-    return jaxmpm.Scene(grid=jaxmpm.Grid(cells=(16, 16), h=1 / 16), materials=(mat,), phases=phases, shape=shape, cfl=0.1,
-                        drag=10.0 if fields > 1 else None, boundary=jaxmpm.Boundary(faces=(("y_lo", "fixed"),)))
+    phases = (
+        jaxmpm.Phase("a", "m", jaxmpm.Box(*box)),
+        jaxmpm.Phase("b", "m", jaxmpm.Box((0.2, 0.0), (0.8, 0.125)), field=fields - 1),
+    )
+    return jaxmpm.Scene(
+        grid=jaxmpm.Grid(cells=(16, 16), h=1 / 16),
+        materials=(mat,),
+        phases=phases,
+        shape=shape,
+        cfl=0.1,
+        drag=10.0 if fields > 1 else None,
+        boundary=jaxmpm.Boundary(faces=(("y_lo", "fixed"),)),
+    )
 
 
 def _run20(scene):
@@ -185,8 +257,9 @@ def test_the_scene_file_format_documented_in_scenefile_loads_as_written():
 
     import jaxmpm.scenefile as sf
 
-    example = "\n".join(line[4:] for line in sf.__doc__.splitlines()
-                        if line.startswith("    ") and not line.startswith("    {"))
+    example = "\n".join(
+        line[4:] for line in sf.__doc__.splitlines() if line.startswith("    ") and not line.startswith("    {")
+    )
     scene = scene_from_toml(example)
     assert scene.name == "block_on_floor" and [m.key for m in scene.materials] == ["soft", "plate"]
     assert scene.materials[1].model == "hypoelastic"

@@ -1,6 +1,7 @@
 """What a new user meets first: the built-in scenes' option ranges (one table for the checks and the
 listing), the run's estimate and confirmation before it starts, magnitude checks before a run, the
 run's PNG, and the packaging of notebooks and the physics documentation."""
+
 from __future__ import annotations
 
 import inspect
@@ -29,12 +30,16 @@ def test_every_resolution_below_its_listed_floor_is_refused_naming_it(name):
     floor = _floor(name)
     scene = jaxmpm.load_scene(name, resolution=floor)
     assert min(scene.grid.cells) >= 2
-    with pytest.raises(ValueError, match=rf"{name}: resolution = .* is invalid: allowed a finite number >= {floor:.3g}"):
+    with pytest.raises(
+        ValueError, match=rf"{name}: resolution = .* is invalid: allowed a finite number >= {floor:.3g}"
+    ):
         jaxmpm.load_scene(name, resolution=0.9 * floor)
 
 
 def test_elastic_impact_at_resolution_0_01_is_refused_and_its_floor_gives_8_cells():
-    with pytest.raises(ValueError, match=r"elastic_impact: resolution = 0\.01 is invalid: allowed a finite number >= 0\.125"):
+    with pytest.raises(
+        ValueError, match=r"elastic_impact: resolution = 0\.01 is invalid: allowed a finite number >= 0\.125"
+    ):
         jaxmpm.load_scene("elastic_impact", resolution=0.01)
     assert jaxmpm.load_scene("elastic_impact", resolution=0.125).grid.cells == (8, 8)
     assert jaxmpm.load_scene("elastic_impact", resolution=0.25).grid.cells == (16, 16)
@@ -50,7 +55,9 @@ def test_mpm88_has_one_n_grid_range_and_its_least_value_builds(dim, ppc_scale):
     scene = jaxmpm.load_scene("mpm88", n_grid=least, dim=dim, ppc_scale=ppc_scale)
     assert scene.phases[0].ppc <= MAX_PPC
     if least > 8:
-        with pytest.raises(ValueError, match=rf"mpm88: n_grid = {least - 1} is invalid: allowed an integer >= {least} "):
+        with pytest.raises(
+            ValueError, match=rf"mpm88: n_grid = {least - 1} is invalid: allowed an integer >= {least} "
+        ):
             jaxmpm.load_scene("mpm88", n_grid=least - 1, dim=dim, ppc_scale=ppc_scale)
     else:
         assert dim == 3
@@ -93,7 +100,9 @@ def test_scenes_refuses_an_unknown_name(capsys):
 def test_listed_ranges_are_the_ones_the_builders_check():
     """Every default is inside its listed range (the listing and the checks share one table)."""
     for name, b in BUILTINS.items():
-        defaults = {k: p.default for k, p in builder_options(b.build).items() if p.default is not inspect.Parameter.empty}
+        defaults = {
+            k: p.default for k, p in builder_options(b.build).items() if p.default is not inspect.Parameter.empty
+        }
         ranges = b.ranges(**defaults)
         assert set(ranges) == set(defaults), name
         for k, r in ranges.items():
@@ -102,8 +111,10 @@ def test_listed_ranges_are_the_ones_the_builders_check():
 
 # --- the run's plan, its estimate and the confirmation (issue: no silent huge or endless run) ----
 
+
 def _impact(**overrides):
     import jax
+
     jax.config.update("jax_enable_x64", True)
     scene = jaxmpm.load_scene("elastic_impact", resolution=0.25, overrides=overrides or None)
     params = jaxmpm.default_params(scene)
@@ -117,26 +128,44 @@ def test_run_past_its_time_threshold_stops_after_the_first_chunk_unless_confirme
     scene, params, state = _impact()
     lines = []
     restart = tmp_path / "r.restart.h5"
-    with pytest.raises(ValueError, match=r"elastic_impact: the run is estimated to take about .* from its first chunk\), "
-                                         r"over the 1e-09 min allowed without confirmation: run it with --yes \(Python: yes=True\)"):
-        jaxmpm.simulate(scene, params, state, t_end=0.2, n_out=2, progress=False, max_minutes=1e-9,
-                        announce=lines.append, restart_file=str(restart), restart_every=1)
+    with pytest.raises(
+        ValueError,
+        match=r"elastic_impact: the run is estimated to take about .* from its first chunk\), "
+        r"over the 1e-09 min allowed without confirmation: run it with --yes \(Python: yes=True\)",
+    ):
+        jaxmpm.simulate(
+            scene,
+            params,
+            state,
+            t_end=0.2,
+            n_out=2,
+            progress=False,
+            max_minutes=1e-9,
+            announce=lines.append,
+            restart_file=str(restart),
+            restart_every=1,
+        )
     assert not restart.exists()
     plan = lines[0]
     n = state.x.shape[0]
-    assert re.match(rf"plan: {n:,} particles, 289 nodes x 1 velocity field\(s\), about [\d,]+ steps to t = 0\.2 s .* "
-                    r"memory at least [\d.]+ (KiB|MiB)", plan)
+    assert re.match(
+        rf"plan: {n:,} particles, 289 nodes x 1 velocity field\(s\), about [\d,]+ steps to t = 0\.2 s .* "
+        r"memory at least [\d.]+ (KiB|MiB)",
+        plan,
+    )
     steps = int(re.search(r"about ([\d,]+) steps", plan).group(1).replace(",", ""))
     assert steps == jaxmpm.plan_steps(scene, params, state, 0.2, safety=1.0)
     assert re.match(r"first chunk: \d+ steps in .* s \(compilation .* s\): the run's [\d,]+ steps take about", lines[1])
     lines.clear()
-    final, _ = jaxmpm.simulate(scene, params, state, t_end=0.2, n_out=2, progress=False, max_minutes=1e-9, yes=True,
-                               announce=lines.append)
+    final, _ = jaxmpm.simulate(
+        scene, params, state, t_end=0.2, n_out=2, progress=False, max_minutes=1e-9, yes=True, announce=lines.append
+    )
     assert float(final.t) == pytest.approx(0.2) and lines[1].startswith("first chunk:")
 
 
 def test_time_threshold_from_the_environment(monkeypatch):
     from jaxmpm.planning import max_minutes
+
     monkeypatch.setenv("JAXMPM_MAX_MINUTES", "2.5")
     assert max_minutes() == 2.5 and max_minutes(7) == 7.0
     monkeypatch.setenv("JAXMPM_MAX_MINUTES", "soon")
@@ -153,21 +182,32 @@ def test_endless_run_on_the_command_line_is_refused_with_its_plan_and_estimate(t
     code = cli.main(["run", "vibrating_bar", "--opt", "cells=20", "--t-end", "1e9", "--out", str(out), "--no-progress"])
     captured = capsys.readouterr()
     assert code == 2, captured.err
-    assert re.search(r"plan: [\d,]+ particles, 25 nodes x 1 velocity field\(s\), about [\d,]{12,} steps to t = 1e\+09 s",
-                     captured.out)
+    assert re.search(
+        r"plan: [\d,]+ particles, 25 nodes x 1 velocity field\(s\), about [\d,]{12,} steps to t = 1e\+09 s",
+        captured.out,
+    )
     assert "first chunk:" in captured.out
-    assert re.search(r"error: vibrating_bar: the run is estimated to take about [\d.]+ (h|days) .* over the 60 min "
-                     r"allowed without confirmation: run it with --yes", captured.err)
+    assert re.search(
+        r"error: vibrating_bar: the run is estimated to take about [\d.]+ (h|days) .* over the 60 min "
+        r"allowed without confirmation: run it with --yes",
+        captured.err,
+    )
     assert not out.exists()
 
 
 def test_history_beyond_the_memory_is_refused_before_the_state_is_made(tmp_path, capsys, monkeypatch):
     import jaxmpm.planning
+
     monkeypatch.setattr(jaxmpm.planning, "available_memory", lambda: 2**20)
-    code = cli.main(["run", "--opt", "resolution=0.25", "--n-out", "100000", "--out", str(tmp_path / "o"), "--no-progress"])
+    code = cli.main(
+        ["run", "--opt", "resolution=0.25", "--n-out", "100000", "--out", str(tmp_path / "o"), "--no-progress"]
+    )
     assert code == 2
-    assert re.search(r"error: n_out = 100000 with \d+ particles and grid\.cells = \[16, 16\] is invalid here: the run keeps "
-                     r"100001 states of .* more than the 1 MiB of memory available", capsys.readouterr().err)
+    assert re.search(
+        r"error: n_out = 100000 with \d+ particles and grid\.cells = \[16, 16\] is invalid here: the run keeps "
+        r"100001 states of .* more than the 1 MiB of memory available",
+        capsys.readouterr().err,
+    )
     scene, params, state = _impact()
     with pytest.raises(ValueError, match=r"n_out = 100000 with .* more than the 1 MiB of memory available"):
         jaxmpm.simulate(scene, params, state, n_out=100_000, progress=False)
@@ -180,17 +220,22 @@ def test_max_minutes_must_be_positive(tmp_path, capsys):
 
 # --- magnitudes checked against the scene's scales before a run ---------------------------------
 
+
 def test_gravity_that_moves_a_particle_more_than_a_cell_per_step_is_refused_before_running():
     """|g| dt^2 > h at the initial CFL step: refused naming gravity and the allowed bound h / dt^2;
     a gravity just inside the bound is accepted (the bound is the one computed, not a guess)."""
     scene, params, state = _impact(**{"effects.gravity": [0.0, -1e30]})
-    with pytest.raises(ValueError, match=r"gravity = \[0\.0, -1e\+30\] m/s\^2 is too large for the grid and time step: "
-                                         r"in one step of dt = .* s it moves a particle at rest .* m, more than a cell "
-                                         r"\(h = 0\.0625 m\): allowed \|gravity\| <= h / dt\^2 = .* m/s\^2"):
+    with pytest.raises(
+        ValueError,
+        match=r"gravity = \[0\.0, -1e\+30\] m/s\^2 is too large for the grid and time step: "
+        r"in one step of dt = .* s it moves a particle at rest .* m, more than a cell "
+        r"\(h = 0\.0625 m\): allowed \|gravity\| <= h / dt\^2 = .* m/s\^2",
+    ):
         jaxmpm.simulate(scene, params, state, progress=False)
     dt = jaxmpm.planning.host_cfl_step(scene, params, state)
     bound = scene.grid.h / dt**2
     from jaxmpm.planning import acceleration_bound
+
     ok = params.__class__(**{**params.__dict__, "gravity": params.gravity * 0 + jax_array([0.0, -0.99 * bound])})
     acceleration_bound(scene, ok, state)
     over = params.__class__(**{**params.__dict__, "gravity": params.gravity * 0 + jax_array([0.0, -1.01 * bound])})
@@ -200,6 +245,7 @@ def test_gravity_that_moves_a_particle_more_than_a_cell_per_step_is_refused_befo
 
 def jax_array(values):
     import jax.numpy as jnp
+
     return jnp.asarray(values)
 
 
@@ -210,18 +256,24 @@ def test_speed_out_of_scale_is_warned_before_and_explained_alike_with_and_withou
     scene, params, state = _impact(**{"phase.disk_a.velocity": [1e5, 1e5]})
     messages = []
     for debug in (False, True):
-        with pytest.warns(UserWarning, match=r"elastic_impact: phase 'disk_a' moves at up to 1\.41e\+05 m/s: unstopped, it "
-                                             r"would leave the grid through a face without a wall at t = .* before t_end = 3 s"):
+        with pytest.warns(
+            UserWarning,
+            match=r"elastic_impact: phase 'disk_a' moves at up to 1\.41e\+05 m/s: unstopped, it "
+            r"would leave the grid through a face without a wall at t = .* before t_end = 3 s",
+        ):
             with pytest.raises(FloatingPointError) as info:
                 jaxmpm.simulate(scene, params, state, progress=False, debug=debug, yes=True)
         messages.append(str(info.value))
     plain, checked = (m.split("; checkify:")[0] for m in messages)
     assert plain == checked
-    assert re.match(r"elastic_impact: particle \d+ of phase 'disk_\w' is outside the grid at t = .* \(step \d+ of chunk 1", plain)
+    assert re.match(
+        r"elastic_impact: particle \d+ of phase 'disk_\w' is outside the grid at t = .* \(step \d+ of chunk 1", plain
+    )
     assert "checkify: step" in messages[1]
 
 
 # --- the run's PNG ---------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def brittle_run():
@@ -229,7 +281,9 @@ def brittle_run():
     3 outputs over 10 us."""
     scene = jaxmpm.load_scene("taylor_brittle", resolution=0.3, length=0.08)
     params = jaxmpm.default_params(scene)
-    final, history = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), t_end=1e-5, n_out=3, progress=False)
+    final, history = jaxmpm.simulate(
+        scene, params, jaxmpm.init_state(scene, params), t_end=1e-5, n_out=3, progress=False
+    )
     return scene, params, history
 
 
@@ -243,6 +297,7 @@ def test_run_figure_has_snapshots_a_colorbar_and_an_energy_panel(brittle_run, fi
     scene, params, history = brittle_run
     fig = run_figure(scene, history, field, panels=4, params=params)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     FigureCanvasAgg(fig).draw()
     axes = fig.get_axes()
     snaps = [a for a in axes if a.get_title().startswith("t = ")]
@@ -266,8 +321,22 @@ def test_run_figure_has_snapshots_a_colorbar_and_an_energy_panel(brittle_run, fi
 
 def test_run_png_is_written_with_the_chosen_field(tmp_path, capsys):
     out = tmp_path / "o"
-    argv = ["run", "--opt", "resolution=0.25", "--t-end", "0.2", "--n-out", "2", "--out", str(out), "--no-progress",
-            "--restart-every", "0", "--plot-field", "pressure"]
+    argv = [
+        "run",
+        "--opt",
+        "resolution=0.25",
+        "--t-end",
+        "0.2",
+        "--n-out",
+        "2",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--restart-every",
+        "0",
+        "--plot-field",
+        "pressure",
+    ]
     assert cli.main(argv) == 0
     png = out / "elastic_impact.png"
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -283,6 +352,7 @@ def test_state_plot_of_a_tall_grid_is_not_wider_than_its_panels_need(brittle_run
     from PIL import Image
 
     from jaxmpm.plot import plot_state
+
     scene, params, history = brittle_run
     last = jaxmpm.plot.jax_tree_index(history, -1)
     png = plot_state(scene, last, tmp_path / "s.png")
@@ -292,9 +362,11 @@ def test_state_plot_of_a_tall_grid_is_not_wider_than_its_panels_need(brittle_run
 
 # --- python -m calibration synthetic --out ----------------------------------------------------
 
+
 class _TinyModel:
     """A stand-in for the synthetic scene's model (observables smooth in theta, identifiable), so
     that the command's writing is checked in a second rather than the scene's minutes."""
+
     class scene:
         name, t_end = "tiny", 1e-6
 
@@ -310,6 +382,7 @@ class _TinyModel:
     @staticmethod
     def observables(theta):
         import jax.numpy as jnp
+
         return jnp.stack([theta[0], theta[1], theta[0] + 2 * theta[1]])
 
 
@@ -327,11 +400,12 @@ def test_synthetic_writes_its_result_into_out(tmp_path, capsys, monkeypatch):
     assert result["recovered"]["C_d"] == pytest.approx(1.0, rel=1e-6)
     assert result["recovered"]["C_h"] == pytest.approx(0.15, rel=1e-6)
     assert str(out / "result.json") in capsys.readouterr().out
-    assert main(["synthetic", "--out", str(out), "--no-progress"]) == 2       # never over a previous result
+    assert main(["synthetic", "--out", str(out), "--no-progress"]) == 2  # never over a previous result
     assert "the folder exists and is not empty" in capsys.readouterr().err
 
 
 # --- the project's own physics documentation -------------------------------------------------
+
 
 def test_physics_doc_names_every_equation_label_and_functions_that_exist():
     """docs/physics.md (shipped with the repository, not beside it) defines E1-E15 and maps each
@@ -360,9 +434,10 @@ def test_physics_doc_names_every_equation_label_and_functions_that_exist():
 def test_notebook_extra_brings_ipywidgets_and_the_readme_says_so():
     """tqdm's notebook progress bars need ipywidgets ("IProgress not found" without it)."""
     import pathlib
+
     try:
         import tomllib
-    except ImportError:             # Python 3.10
+    except ImportError:  # Python 3.10
         import tomli as tomllib
 
     root = pathlib.Path(__file__).parents[1]

@@ -14,6 +14,7 @@ Guinan's bilinear J2 copper bar, L0 = 32.4 mm, D0 = 6.4 mm, at 227 m/s on a fric
 wall: at 80 us 21.42 mm long with an impact-face radius of 7.22 mm, converged in mesh size
 (Sierra/SolidMechanics and Carina, tabulated in Carina.jl's benchmark/tet15-p1/taylor/README.md;
 Foulk et al. 2021)."""
+
 import functools
 import re
 
@@ -25,11 +26,11 @@ from jaxmpm.scenes.impact import taylor_measures
 
 L_MEASURED, D_MEASURED = 16.2e-3, 13.6e-3
 L0 = 25.4e-3
-L_OVER_L0_MEASURED = {130.0: 0.770, 146.0: 0.736, 190.0: 0.638}     # Johnson & Cook 1983 via Zerilli & Armstrong 1987
+L_OVER_L0_MEASURED = {130.0: 0.770, 146.0: 0.736, 190.0: 0.638}  # Johnson & Cook 1983 via Zerilli & Armstrong 1987
 
 
-BILINEAR_CONVERGED = (21.42e-3, 7.22e-3)       # (L_f, face radius) in m at 80 us
-STEEL_CODES = {"DynELA": (26.52e-3, 11.15e-3), "Abaqus/Explicit": (26.56e-3, 11.16e-3)}   # (L_f, D_f) in m
+BILINEAR_CONVERGED = (21.42e-3, 7.22e-3)  # (L_f, face radius) in m at 80 us
+STEEL_CODES = {"DynELA": (26.52e-3, 11.15e-3), "Abaqus/Explicit": (26.56e-3, 11.16e-3)}  # (L_f, D_f) in m
 
 
 @functools.lru_cache(maxsize=6)
@@ -57,7 +58,7 @@ def test_rod_comes_to_rest_on_the_frictionless_wall_conserving_energy():
     """Resolution 0.5: the rigid slip wall does no work, so the kinetic energy becomes internal
     energy (plastic work and heat) with kinetic + internal conserved (measured 0.04%); at 80 us
     the rod is at rest (kinetic energy 0.9% of the initial) and shorter and wider than it was."""
-    scene, s0, final = run(0.5, 190.0)          # the scene's default speed: the run the next test reuses
+    scene, s0, final = run(0.5, 190.0)  # the scene's default speed: the run the next test reuses
     assert all(bool(jax.numpy.isfinite(a).all()) for a in jax.tree.leaves(final))
     assert float(final.mass.sum()) == float(s0.mass.sum())
     assert energy(final) == pytest.approx(energy(s0), rel=0.005)
@@ -81,7 +82,7 @@ def test_final_length_falls_with_impact_speed_as_measured():
         assert L[slow] - L[190.0] == pytest.approx(L_OVER_L0_MEASURED[slow] - L_OVER_L0_MEASURED[190.0], rel=0.05), L
 
 
-@pytest.mark.slow                # 37 s; the copper bar stays in the default run
+@pytest.mark.slow  # 37 s; the copper bar stays in the default run
 def test_johnson_cook_steel_rod_matches_two_finite_element_codes():
     """The verification case at resolution 0.5 (1010 particles): final length within 1% of both
     codes' (measured 26.46 mm against 26.52 and 26.56 mm; 26.44 mm at resolution 1), footprint
@@ -118,7 +119,10 @@ def test_bilinear_copper_bar_matches_the_converged_reference(resolution):
 
 
 def test_taylor_bar_refuses_an_unknown_material():
-    with pytest.raises(ValueError, match=re.escape("material = 'steel' is invalid: allowed copper_ofhc | steel_42crmo4 | copper_bilinear")):
+    with pytest.raises(
+        ValueError,
+        match=re.escape("material = 'steel' is invalid: allowed copper_ofhc | steel_42crmo4 | copper_bilinear"),
+    ):
         jaxmpm.load_scene("taylor_bar", material="steel")
 
 
@@ -134,13 +138,16 @@ def test_final_shape_converges_in_resolution():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation, documented in docs/limitations.md (issue 8): "
-                   "at resolution 1 the rod ends 17.18 mm long, 6.0% longer than "
-                   "Johnson & Cook's measured 16.2 mm (footprint 14.57 against 13.6 mm on a frictionless wall); "
-                   "without the strain-rate term (C = 0) it is 16.00 mm; with the rate on the plastic strain "
-                   "rate (Johnson & Cook's definition) it is the same 17.18 mm; 17.27 mm at resolution 2; "
-                   "the offset is near-constant over the three measured speeds (+0.039 L0 at 130 and 146 "
-                   "m/s, +0.038 at 190), while the speed dependence matches to 0.001 L0")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation, documented in docs/limitations.md (issue 8): "
+    "at resolution 1 the rod ends 17.18 mm long, 6.0% longer than "
+    "Johnson & Cook's measured 16.2 mm (footprint 14.57 against 13.6 mm on a frictionless wall); "
+    "without the strain-rate term (C = 0) it is 16.00 mm; with the rate on the plastic strain "
+    "rate (Johnson & Cook's definition) it is the same 17.18 mm; 17.27 mm at resolution 2; "
+    "the offset is near-constant over the three measured speeds (+0.039 L0 at 130 and 146 "
+    "m/s, +0.038 at 190), while the speed dependence matches to 0.001 L0",
+)
 def test_final_length_within_5_percent_of_the_experiment():
     scene, _, final = run(1.0)
     L, _ = measured(scene, final)

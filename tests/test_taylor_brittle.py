@@ -1,5 +1,6 @@
 """Brittle Taylor impact (built-in `taylor_brittle`, 2D axisymmetric, maxwell_brittle): a glass-like
 rod on a frictionless rigid wall at 20 m/s cracks."""
+
 import jax
 import numpy as np
 import pytest
@@ -26,7 +27,7 @@ def test_coarse_brittle_rod_cracks_in_part_and_conserves_mass_and_energy():
     failed = float(final.damage.mean())
     print(f"taylor_brittle: {failed:.1%} failed at {float(final.t) * 1e6:.0f} us")
     assert 0.1 < failed < 0.9
-    early = jax.tree.map(lambda a: a[1], history)                        # 3 us: the wave is 16 mm up the rod
+    early = jax.tree.map(lambda a: a[1], history)  # 3 us: the wave is 16 mm up the rod
     z, d = np.asarray(early.x[:, 1]), np.asarray(early.damage)
     length = float(s0.x[:, 1].max())
     assert d[z < 0.1 * length].mean() > 0.1 and d[z > 0.6 * length].max() == 0.0

@@ -1,6 +1,7 @@
 """The optimised transfer and DDMP operators equal their straightforward forms (einsum, sums of
 shifted copies) on random data, values and gradients: particles anywhere in their cells, on cell
 faces and on nodes, cells without material (zero weights), 1D/2D/3D and axisymmetric."""
+
 import jax
 import jax.extend
 import jax.numpy as jnp
@@ -12,8 +13,16 @@ from jaxmpm.compile import native_reductions_forms
 from jaxmpm.geometry import Grid
 from jaxmpm.shapes import bspline2_stencil, linear_stencil
 from jaxmpm.state import stencil_offsets
-from jaxmpm.transfer import (gather, gather_by_offset, offset_stencil, scatter, scatter_by_offset, scatter_by_window,
-                             stencil_apply, stencil_outer)
+from jaxmpm.transfer import (
+    gather,
+    gather_by_offset,
+    offset_stencil,
+    scatter,
+    scatter_by_offset,
+    scatter_by_window,
+    stencil_apply,
+    stencil_outer,
+)
 
 RTOL = 1e-12
 
@@ -42,7 +51,7 @@ def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
     support = ddmp.node_support(grid, axisymmetric)
     nodal_volume = jnp.asarray(rng.uniform(0, 1.2, (K,) + grid.nodes) * support)
     cell_volume = rng.uniform(0, 1, (K,) + grid.cells) * grid.h**dim * 0.1
-    cell_volume[rng.uniform(size=cell_volume.shape) < 0.3] = 0.0          # empty cells
+    cell_volume[rng.uniform(size=cell_volume.shape) < 0.3] = 0.0  # empty cells
     return grid, ddmp.build(grid, nodal_volume, jnp.asarray(cell_volume), axisymmetric)
 
 
@@ -52,12 +61,13 @@ def test_add_corners_equals_shifted_sums(dim, form):
     """Both forms of the corner sums (jaxmpm/forms.py: a loop over the corners, one fused sum),
     values, gradients and a batched second derivative."""
     from jaxmpm.forms import transfer_forms
+
     rng = np.random.default_rng(dim)
     cells = (3, 4, 2)[:dim]
     c = jnp.asarray(rng.normal(size=(2,) + cells + (2**dim, 3, 2)))
     w = jnp.asarray(rng.normal(size=(2,) + tuple(n + 1 for n in cells) + (3, 2)))
     loss = lambda add: lambda c: jnp.sum(w * jnp.sin(add(c, dim)))
-    hvp = lambda add: jax.vmap(lambda t: jax.jvp(jax.grad(loss(add)), (c,), (t,))[1])(jnp.stack([c, c ** 2]))
+    hvp = lambda add: jax.vmap(lambda t: jax.jvp(jax.grad(loss(add)), (c,), (t,))[1])(jnp.stack([c, c**2]))
     with transfer_forms(form):
         np.testing.assert_allclose(ddmp.add_corners(c, dim), add_corners_shifted(c, dim), rtol=RTOL, atol=1e-14)
         g1, h1 = jax.grad(loss(ddmp.add_corners))(c), hvp(ddmp.add_corners)
@@ -68,7 +78,9 @@ def test_add_corners_equals_shifted_sums(dim, form):
 
 
 @pytest.mark.parametrize("native", [False, True])
-@pytest.mark.parametrize("dim,axisymmetric", [(1, False), (2, False), pytest.param(3, False, marks=pytest.mark.slow), (2, True)])
+@pytest.mark.parametrize(
+    "dim,axisymmetric", [(1, False), (2, False), pytest.param(3, False, marks=pytest.mark.slow), (2, True)]
+)
 def test_ddmp_operators_equal_their_einsum_forms(dim, axisymmetric, native):
     """Both forms of the corner contractions (compile.native_reductions: reductions under
     jaxmpm.jit, unrolled sums elsewhere)."""
@@ -104,20 +116,36 @@ def check_ddmp_operators(dim, axisymmetric):
     v = jnp.asarray(rng.normal(size=(K,) + grid.nodes + (dim,)))
     p = jnp.asarray(rng.normal(size=grid.nodes))
     shp = jnp.asarray(rng.normal(size=(K,) + grid.nodes))
-    for fast, ref, arg in ((lambda a: ddmp.nodal_stress_force(grid, dg, a), force_ref, shv),
-                           (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
-                           (lambda a: ddmp.nodal_interface_force(grid, dg, shp, a),    # E13: isotropic share and theta S grad p
-                            lambda a: force_ref(shp[..., None, None] * jnp.eye(dim)) - scalar_ref(a), p),
-                           (lambda a: ddmp.nodal_interface_force(grid, dg, a, p),
-                            lambda a: force_ref(a[..., None, None] * jnp.eye(dim)) - scalar_ref(p), shp),
-                           (lambda a: ddmp.nodal_interface_force(grid, dg, None, a), lambda a: -scalar_ref(a), p)):
+    for fast, ref, arg in (
+        (lambda a: ddmp.nodal_stress_force(grid, dg, a), force_ref, shv),
+        (lambda a: ddmp.nodal_velocity_gradient(grid, dg, a), grad_ref, v),
+        (
+            lambda a: ddmp.nodal_interface_force(grid, dg, shp, a),  # E13: isotropic share and theta S grad p
+            lambda a: force_ref(shp[..., None, None] * jnp.eye(dim)) - scalar_ref(a),
+            p,
+        ),
+        (
+            lambda a: ddmp.nodal_interface_force(grid, dg, a, p),
+            lambda a: force_ref(a[..., None, None] * jnp.eye(dim)) - scalar_ref(p),
+            shp,
+        ),
+        (lambda a: ddmp.nodal_interface_force(grid, dg, None, a), lambda a: -scalar_ref(a), p),
+    ):
         np.testing.assert_allclose(jax.jit(fast)(arg), jax.jit(ref)(arg), rtol=1e-11, atol=1e-12)
         w = jnp.asarray(rng.normal(size=jax.eval_shape(fast, arg).shape))
-        np.testing.assert_allclose(jax.jit(jax.grad(lambda a: jnp.sum(w * fast(a))))(arg),
-                                   jax.jit(jax.grad(lambda a: jnp.sum(w * ref(a))))(arg), rtol=1e-11, atol=1e-12)
-        t = jnp.asarray(rng.normal(size=arg.shape))                      # forward mode too
-        np.testing.assert_allclose(jax.jit(lambda a, t: jax.jvp(fast, (a,), (t,))[1])(arg, t),
-                                   jax.jit(lambda a, t: jax.jvp(ref, (a,), (t,))[1])(arg, t), rtol=1e-11, atol=1e-12)
+        np.testing.assert_allclose(
+            jax.jit(jax.grad(lambda a: jnp.sum(w * fast(a))))(arg),
+            jax.jit(jax.grad(lambda a: jnp.sum(w * ref(a))))(arg),
+            rtol=1e-11,
+            atol=1e-12,
+        )
+        t = jnp.asarray(rng.normal(size=arg.shape))  # forward mode too
+        np.testing.assert_allclose(
+            jax.jit(lambda a, t: jax.jvp(fast, (a,), (t,))[1])(arg, t),
+            jax.jit(lambda a, t: jax.jvp(ref, (a,), (t,))[1])(arg, t),
+            rtol=1e-11,
+            atol=1e-12,
+        )
 
 
 @pytest.mark.parametrize("native", [False, True])
@@ -141,8 +169,15 @@ def test_ddmp_operators_differentiate_through_their_cell_integrals(native):
 
     with native_reductions_forms(native):
         fast = jax.jit(jax.grad(lambda nv: loss(nv, ddmp._force_contraction, ddmp._gradient_contraction)))(nv0)
-    ref = jax.jit(jax.grad(lambda nv: loss(nv, lambda s, A: jnp.einsum("...jab,...jib->...ia", s, A),
-                                           lambda c, A: jnp.einsum("...ia,...jib->...jab", c, A))))(nv0)
+    ref = jax.jit(
+        jax.grad(
+            lambda nv: loss(
+                nv,
+                lambda s, A: jnp.einsum("...jab,...jib->...ia", s, A),
+                lambda c, A: jnp.einsum("...ia,...jib->...jab", c, A),
+            )
+        )
+    )(nv0)
     np.testing.assert_allclose(fast, ref, rtol=1e-11, atol=1e-12)
     assert float(jnp.abs(ref).max()) > 0
 
@@ -152,7 +187,7 @@ def _eqns(jaxpr):
     for e in jaxpr.eqns:
         yield e
         for v in e.params.values():
-            for sub in (v if isinstance(v, (list, tuple)) else (v,)):
+            for sub in v if isinstance(v, (list, tuple)) else (v,):
                 if isinstance(sub, jax.extend.core.ClosedJaxpr):
                     yield from _eqns(sub.jaxpr)
                 elif isinstance(sub, jax.extend.core.Jaxpr):
@@ -177,6 +212,7 @@ def test_contractions_inside_a_linearisation_keep_their_reduced_tangent():
         def forces(p):
             c = -contract_scalar(ddmp.corners(p[None], 2), A) - contract_isotropic(ddmp.corners(shp, 2), A)
             return ddmp.add_corners(c, 2)
+
         I, transpose = jax.vjp(forces, p)
         return jnp.sum(jnp.sin(I)) + jnp.sum(transpose(w)[0] ** 2)
 
@@ -186,8 +222,17 @@ def test_contractions_inside_a_linearisation_keep_their_reduced_tangent():
         g_fast = jax.jit(jax.grad(fast, argnums=(0, 1)))(dg.A, p)
     padded = [e for e in _eqns(jaxpr.jaxpr) if e.primitive.name == "pad" and e.outvars[0].aval.shape == dg.A.shape]
     assert not padded, f"{len(padded)} padded copies of A in the gradient"
-    g_ref = jax.jit(jax.grad(lambda A, p: loss(A, p, lambda q, A: jnp.einsum("...i,...nik->...nk", q, A),
-                                                lambda q, A: jnp.einsum("...j,...jik->...ik", q, A)), argnums=(0, 1)))(dg.A, p)
+    g_ref = jax.jit(
+        jax.grad(
+            lambda A, p: loss(
+                A,
+                p,
+                lambda q, A: jnp.einsum("...i,...nik->...nk", q, A),
+                lambda q, A: jnp.einsum("...j,...jik->...ik", q, A),
+            ),
+            argnums=(0, 1),
+        )
+    )(dg.A, p)
     for a, b in zip(g_fast, g_ref):
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-12)
         assert float(jnp.abs(b).max()) > 0
@@ -219,13 +264,15 @@ def test_add_corners_transposes_to_the_corner_slices(dim):
     t = jax.jvp(lambda c: ddmp.add_corners(c, dim), (c,), (dc,))[1]
     np.testing.assert_allclose(t, add_corners_shifted(dc, dim), rtol=RTOL, atol=1e-14)
     hvp = jax.vmap(lambda v: jax.jvp(jax.grad(lambda c: loss(c, ddmp.add_corners)), (c,), (v,))[1])(jnp.stack([c, dc]))
-    hvp_ref = jax.vmap(lambda v: jax.jvp(jax.grad(lambda c: loss(c, add_corners_shifted)), (c,), (v,))[1])(jnp.stack([c, dc]))
+    hvp_ref = jax.vmap(lambda v: jax.jvp(jax.grad(lambda c: loss(c, add_corners_shifted)), (c,), (v,))[1])(
+        jnp.stack([c, dc])
+    )
     np.testing.assert_allclose(hvp, hvp_ref, rtol=1e-11, atol=1e-13)
     assert float(jnp.abs(hvp_ref).max()) > 0
 
 
 @pytest.mark.parametrize("shape", ["linear", "bspline2"])
-@pytest.mark.parametrize("dim", [pytest.param(1, marks=pytest.mark.slow), 2, 3])   # 1D: the product of one factor
+@pytest.mark.parametrize("dim", [pytest.param(1, marks=pytest.mark.slow), 2, 3])  # 1D: the product of one factor
 def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     """The tensor-product weights S_n = prod_d S(x_d) (broadcast products of the 1D weights) and
     DDMP's beta (E9, one product reduction in the derivatives' primal too: jnp.prod's own rule
@@ -235,6 +282,7 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     scatter-adds: the elastic impact's shape-function stage 0.32 -> 0.10 ms per step in its
     gradient's transpose)."""
     from jaxmpm import shapes
+
     rng = np.random.default_rng(60 + dim)
     grid = Grid(cells=(4, 3, 2)[:dim], h=0.25, origin=(0.0,) * dim)
     x = particles_on_faces(rng, grid, 40)
@@ -259,8 +307,13 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
         w1 = [jnp.stack(one_d(st.xi[:, k]), 1) for k in range(dim)]
         dw1 = [jax.vmap(jax.jacfwd(lambda f: jnp.stack(one_d(f))))(st.xi[:, k]) / grid.h for k in range(dim)]
         w = jnp.prod(jnp.stack([by_node(w1[k], k) for k in range(dim)], -1), -1)
-        dw = jnp.stack([jnp.prod(jnp.stack([by_node(dw1[k] if e == k else w1[e], e) for e in range(dim)], -1), -1)
-                        for k in range(dim)], -1)
+        dw = jnp.stack(
+            [
+                jnp.prod(jnp.stack([by_node(dw1[k] if e == k else w1[e], e) for e in range(dim)], -1), -1)
+                for k in range(dim)
+            ],
+            -1,
+        )
         return w, dw, jnp.prod(4 * st.xi * (1 - st.xi), -1)
 
     plain = lambda a: jnp.prod(a, -1)
@@ -268,11 +321,18 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
         np.testing.assert_array_equal(a, b)
     for a, b in zip(weights(x, shapes._product_over_axes), jax.jit(weights_reference)(x)):
         np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
-    reverse = jax.make_jaxpr(jax.grad(lambda x: sum(jnp.sum(jnp.sin(a)) for a in make(grid, x).__dict__.values()
-                                                    if jnp.issubdtype(a.dtype, jnp.floating))))(x)
+    reverse = jax.make_jaxpr(
+        jax.grad(
+            lambda x: sum(
+                jnp.sum(jnp.sin(a)) for a in make(grid, x).__dict__.values() if jnp.issubdtype(a.dtype, jnp.floating)
+            )
+        )
+    )(x)
     assert not [e for e in _eqns(reverse.jaxpr) if "scatter" in e.primitive.name], "the weights' transpose scatters"
     primal = jax.make_jaxpr(lambda x, dx: jax.jvp(lambda x: weights(x, shapes._product_over_axes), (x,), (dx,)))(x, x)
-    assert "reduce_prod" in {e.primitive.name for e in _eqns(primal.jaxpr)}, "the derivative's primal lost the reduction"
+    assert "reduce_prod" in {e.primitive.name for e in _eqns(primal.jaxpr)}, (
+        "the derivative's primal lost the reduction"
+    )
     u = [jnp.asarray(rng.normal(size=a.shape)) for a in weights(x, plain)]
 
     def loss(x, product):
@@ -283,8 +343,9 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     g, g_ref = gradient(x, shapes._product_over_axes), gradient(x, plain)
     np.testing.assert_allclose(g, g_ref, rtol=1e-12, atol=1e-12)
     assert float(jnp.abs(g_ref).max()) > 0
-    hessian_vector = jax.jit(lambda x, dx, product: jax.jvp(lambda x: gradient(x, product), (x,), (dx,))[1],
-                             static_argnums=2)
+    hessian_vector = jax.jit(
+        lambda x, dx, product: jax.jvp(lambda x: gradient(x, product), (x,), (dx,))[1], static_argnums=2
+    )
     hvp, hvp_ref = hessian_vector(x, dx, shapes._product_over_axes), hessian_vector(x, dx, plain)
     np.testing.assert_allclose(hvp, hvp_ref, rtol=1e-11, atol=1e-11)
 
@@ -298,7 +359,7 @@ def test_stencil_contractions_equal_einsums(dim, native):
     rng = np.random.default_rng(20 + dim)
     grid = Grid(cells=(4, 3, 2)[:dim], h=0.25, origin=(0.0,) * dim)
     st = linear_stencil(grid, particles_on_faces(rng, grid, 50))
-    v = jnp.asarray(rng.normal(size=st.dw.shape))              # (N, S, d): nodal values at the stencil
+    v = jnp.asarray(rng.normal(size=st.dw.shape))  # (N, S, d): nodal values at the stencil
     sig = jnp.asarray(rng.normal(size=(st.dw.shape[0], dim, dim)))
     np.testing.assert_allclose(stencil_outer(v, st.dw), jnp.einsum("nsa,nsb->nab", v, st.dw), rtol=RTOL, atol=1e-13)
     np.testing.assert_allclose(stencil_apply(sig, st.dw), jnp.einsum("nab,nsb->nsa", sig, st.dw), rtol=RTOL, atol=1e-13)
@@ -309,21 +370,30 @@ def test_stencil_contractions_equal_einsums(dim, native):
         def f(x, v, sig):
             dw = linear_stencil(grid, x).dw
             return jnp.sum(f_outer(v, dw) ** 2) + jnp.sum(jnp.sin(f_apply(sig, dw) + 0.3))
+
         return jax.grad(f, argnums=(0, 1, 2))
 
     with native_reductions_forms(native):
         fast = jax.jit(loss(stencil_outer, stencil_apply))(x, v, sig)
-        jaxpr = jax.make_jaxpr(jax.grad(lambda v, sig, dw: jnp.sum(stencil_outer(v, dw) ** 2) + jnp.sum(
-            jnp.sin(stencil_apply(sig, dw))), argnums=(0, 1, 2)))(v, sig, st.dw)
-    ref = jax.jit(loss(lambda a, b: jnp.einsum("nsa,nsb->nab", a, b), lambda m, b: jnp.einsum("nab,nsb->nsa", m, b)))(x, v, sig)
+        jaxpr = jax.make_jaxpr(
+            jax.grad(
+                lambda v, sig, dw: jnp.sum(stencil_outer(v, dw) ** 2) + jnp.sum(jnp.sin(stencil_apply(sig, dw))),
+                argnums=(0, 1, 2),
+            )
+        )(v, sig, st.dw)
+    ref = jax.jit(loss(lambda a, b: jnp.einsum("nsa,nsb->nab", a, b), lambda m, b: jnp.einsum("nab,nsb->nsa", m, b)))(
+        x, v, sig
+    )
     for i, (a, b) in enumerate(zip(fast, ref)):
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-12)
-        assert float(jnp.abs(b).max()) > 0 or (dim, i) == (1, 0)       # 1D: grad S does not depend on x
+        assert float(jnp.abs(b).max()) > 0 or (dim, i) == (1, 0)  # 1D: grad S does not depend on x
     padded = [e for e in _eqns(jaxpr.jaxpr) if e.primitive.name == "pad" and e.outvars[0].aval.shape == st.dw.shape]
     assert not (native and padded), f"{len(padded)} padded copies of an (N, S, d) argument in the gradient"
 
 
-@pytest.mark.parametrize("scatter_form", [pytest.param("offset", marks=pytest.mark.slow), "window"])   # offset: the benchmarks' reference
+@pytest.mark.parametrize(
+    "scatter_form", [pytest.param("offset", marks=pytest.mark.slow), "window"]
+)  # offset: the benchmarks' reference
 @pytest.mark.parametrize("shape", ["bspline2", "linear"])
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):
@@ -337,7 +407,7 @@ def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):
     rng = np.random.default_rng(30 + dim)
     grid = Grid(cells=(7, 6, 5)[:dim], h=0.25, origin=(0.0, -0.5, 0.25)[:dim])
     n = 43
-    x = particles_on_faces(rng, Grid(cells=(3, 3, 2)[:dim], h=grid.h, origin=grid.origin), n)   # nodes past them: empty
+    x = particles_on_faces(rng, Grid(cells=(3, 3, 2)[:dim], h=grid.h, origin=grid.origin), n)  # nodes past them: empty
     m = jnp.asarray(rng.uniform(0.5, 2.0, n))
     v = jnp.asarray(rng.normal(size=(n, dim)))
     A = jnp.asarray(rng.normal(size=(n, dim, dim)))
@@ -356,11 +426,15 @@ def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):
         ost = offset_stencil(grid, x, shape)
         mv, At = (m[:, None] * v).T, jnp.transpose(A, (1, 2, 0))
         if scatter_form == "offset":
-            contrib = lambda w, dpos: jnp.concatenate([(w * m)[None], w * (mv + sum(At[:, k] * dpos[k] for k in range(dim)))])
+            contrib = lambda w, dpos: jnp.concatenate(
+                [(w * m)[None], w * (mv + sum(At[:, k] * dpos[k] for k in range(dim)))]
+            )
             g = scatter_by_offset(ost, contrib, dim + 1, grid.n_nodes, m.dtype)
         else:
+
             def contrib(w, dpos, m, mv, At):
                 return [w * m] + [w * (mv[c] + sum(At[c, k] * dpos[k] for k in range(dim))) for c in range(dim)]
+
             g = scatter_by_window(ost, contrib, (m, mv, At), dim + 1, m.dtype, block=8)
 
         def accumulate(carry, w, dpos, vals):
@@ -371,7 +445,7 @@ def test_offset_transfers_equal_the_stencil_transfers(dim, shape, scatter_form):
 
     args = (x, m, v, A, vn)
     ref, new = jax.jit(by_stencil)(*args), jax.jit(by_offset)(*args)
-    assert float(jnp.max(ref[0][:, 0])) > 0 and int(jnp.sum(ref[0][:, 0] == 0)) > 0   # reached and unreached nodes
+    assert float(jnp.max(ref[0][:, 0])) > 0 and int(jnp.sum(ref[0][:, 0] == 0)) > 0  # reached and unreached nodes
     for a, b in zip(new, ref):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-13)
     weights = [jnp.asarray(rng.normal(size=r.shape)) for r in ref]
@@ -387,6 +461,7 @@ def test_tangent_fence_passes_the_tangent_where_on_and_zero_where_off():
     dt > 0) and zero where off, in forward and reverse mode, batched (a per-member dt of an
     ensemble) and at second order; the step's conditional is in the derivative's program."""
     from jaxmpm.step import tangent_fenced
+
     x = jnp.linspace(-1.0, 2.0, 12).reshape(3, 2, 2)
     f = lambda x, on: jnp.sum(jnp.sin(tangent_fenced(x * x, on)))
     for on in (True, False):
@@ -395,21 +470,21 @@ def test_tangent_fence_passes_the_tangent_where_on_and_zero_where_off():
         np.testing.assert_allclose(jax.grad(f)(x, jnp.asarray(on)), expected, rtol=1e-14)
         t = jax.jvp(lambda x: f(x, jnp.asarray(on)), (x,), (jnp.ones_like(x),))[1]
         np.testing.assert_allclose(t, jnp.sum(expected), rtol=1e-14)
-        h = jax.grad(lambda x: jnp.sum(jax.grad(f)(x, jnp.asarray(on))))(x)            # second order
+        h = jax.grad(lambda x: jnp.sum(jax.grad(f)(x, jnp.asarray(on))))(x)  # second order
         np.testing.assert_allclose(h, (2 * jnp.cos(x * x) - 4 * x * x * jnp.sin(x * x)) if on else 0 * x, rtol=1e-13)
     on = jnp.asarray([True, False, True])
     g = jax.vmap(jax.grad(lambda x, on: jnp.sum(jnp.sin(tangent_fenced(x * x, on)))))(x, on)
     np.testing.assert_allclose(g, jnp.where(on[:, None, None], 2 * x * jnp.cos(x * x), 0.0), rtol=1e-14)
     jaxpr = str(jax.make_jaxpr(jax.grad(f))(x, jnp.asarray(True)))
     assert "cond[" in jaxpr
+
     def tree(x, on):
         t = tangent_fenced({"a": x * x, "b": (2 * x, 3 * x)}, on)
         return jnp.sum(jnp.sin(t["a"])) + jnp.sum(t["b"][1])
 
-    for on in (True, False):                                              # a pytree: one conditional
+    for on in (True, False):  # a pytree: one conditional
         expected = (2 * x * jnp.cos(x * x) + 3) if on else jnp.zeros_like(x)
         np.testing.assert_allclose(jax.grad(tree)(x, jnp.asarray(on)), expected, rtol=1e-14)
-
 
 
 # ------------------------------------------------------------------ the GPU forms against the CPU's
@@ -429,8 +504,14 @@ def _form_scene(case):
     fluid = jaxmpm.Material.make("fluid", "linear_fluid", rho0=1.0, K=400.0)
     steel = jaxmpm.Material.make("steel", "linear_elastic", rho0=7800.0, E=200e9, nu=0.3)
     if case == "apic-1d":
-        return Scene(grid=SceneGrid(cells=(12,), h=0.1), shape="bspline2", transfer="apic", materials=(fluid,),
-                     phases=(Phase("a", "fluid", Box((0.3,), (0.8,)), velocity=(0.7,)),), gravity=(-9.8,))
+        return Scene(
+            grid=SceneGrid(cells=(12,), h=0.1),
+            shape="bspline2",
+            transfer="apic",
+            materials=(fluid,),
+            phases=(Phase("a", "fluid", Box((0.3,), (0.8,)), velocity=(0.7,)),),
+            gravity=(-9.8,),
+        )
     if case in ("apic-2d", "apic-3d"):
         return basic.mpm88(n_grid=8, dim=int(case[-2]), ppc_scale=0.005 if case == "apic-2d" else 1.0)
     if case == "ddmp-1d":
@@ -440,10 +521,14 @@ def _form_scene(case):
     if case == "ddmp-3d":
         return dataclasses.replace(basic.mpm88(n_grid=8, dim=3), shape="ddmp", transfer="musl")
     if case == "ddmp-axisymmetric":
-        return Scene(grid=SceneGrid(cells=(5, 8), h=1e-3, origin=(0.0, 0.0)), axisymmetric=True, materials=(steel,),
-                     phases=(Phase("rod", "steel", Box((0.0, 1e-3), (3e-3, 6e-3)), velocity=(0.0, -50.0)),))
+        return Scene(
+            grid=SceneGrid(cells=(5, 8), h=1e-3, origin=(0.0, 0.0)),
+            axisymmetric=True,
+            materials=(steel,),
+            phases=(Phase("rod", "steel", Box((0.0, 1e-3), (3e-3, 6e-3)), velocity=(0.0, -50.0)),),
+        )
     if case == "two-fields-1d":
-        return two_blocks(1.0, "off", cells=24)        # the continuity form's transpose: in the axisymmetric case
+        return two_blocks(1.0, "off", cells=24)  # the continuity form's transpose: in the axisymmetric case
     if case == "two-fields-axisymmetric":
         return impact.debris_cloud(resolution=0.75, fields=2)
     raise ValueError(case)
@@ -473,19 +558,26 @@ def _steps_and_gradient(scene, form, n_steps=3):
                 s = step(params, s, jnp.inf, dt)
             return s
 
-        def loss(x, v):     # and the final state: forward and gradient in one compiled program
+        def loss(x, v):  # and the final state: forward and gradient in one compiled program
             s = run(x, v)
-            scale = jax.lax.stop_gradient(jnp.max(jnp.abs(s.stress))) + 1.0         # Pa: the final stresses' size
+            scale = jax.lax.stop_gradient(jnp.max(jnp.abs(s.stress))) + 1.0  # Pa: the final stresses' size
             return jnp.sum(wx * s.x) / scene.grid.h + jnp.sum(wv * s.v) + jnp.sum(ws * jnp.sin(s.stress / scale)), s
 
         (_, final), grad = jaxmpm.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(s0.x, s0.v)
     return s0, final, grad
 
 
-FORM_CASES = ["apic-1d", "apic-2d", pytest.param("apic-3d", marks=pytest.mark.slow), pytest.param("ddmp-1d", marks=pytest.mark.slow),
-              pytest.param("ddmp-2d", marks=pytest.mark.slow),
-              pytest.param("ddmp-3d", marks=pytest.mark.slow), "ddmp-axisymmetric", "two-fields-1d",
-              pytest.param("two-fields-axisymmetric", marks=pytest.mark.slow)]
+FORM_CASES = [
+    "apic-1d",
+    "apic-2d",
+    pytest.param("apic-3d", marks=pytest.mark.slow),
+    pytest.param("ddmp-1d", marks=pytest.mark.slow),
+    pytest.param("ddmp-2d", marks=pytest.mark.slow),
+    pytest.param("ddmp-3d", marks=pytest.mark.slow),
+    "ddmp-axisymmetric",
+    "two-fields-1d",
+    pytest.param("two-fields-axisymmetric", marks=pytest.mark.slow),
+]
 
 
 @pytest.mark.parametrize("case", FORM_CASES)

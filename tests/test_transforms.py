@@ -1,4 +1,5 @@
 """jit, vmap and grad through the step and through simulate."""
+
 import dataclasses
 import importlib
 
@@ -65,6 +66,7 @@ def _loss_fn(scene, params, state, n):
         s = dataclasses.replace(state, v=state.v.at[: state.n_particles // 2].set(v0))
         final = jaxmpm.simulate(scene, p, s, n_steps=n, checkpoint=True)[0]
         return jnp.sum(final.mass * final.x[:, 0] * final.x[:, 1]) + jnp.sum(final.stress[:, 0, 0]) * 1e-3
+
     return loss
 
 
@@ -124,8 +126,10 @@ def plain_scan_gradient(small):
 
 # True and "auto" run the programs of "nested" and "steps" (checkpoint_mode: the test below), so
 # they are in the slow set
-@pytest.mark.parametrize("mode", [pytest.param(True, marks=pytest.mark.slow), "nested", "steps",
-                                  pytest.param("auto", marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "mode",
+    [pytest.param(True, marks=pytest.mark.slow), "nested", "steps", pytest.param("auto", marks=pytest.mark.slow)],
+)
 def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradient, mode):
     """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
     the last two steps padding), "steps" (each step recomputed from its stored input) and "auto"
@@ -135,7 +139,7 @@ def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradien
     assert nested_sizes(7) == (3, 3) and nested_sizes(9) == (3, 3) and nested_sizes(1) == (1, 1)
     (a, ta), ga = jax.value_and_grad(_checkpointed_loss(small, mode), has_aux=True)(1000.0)
     (b, tb), gb = plain_scan_gradient
-    assert float(ta) == float(tb) and float(ta) < 1.5          # falls short of t_end: padding must not step
+    assert float(ta) == float(tb) and float(ta) < 1.5  # falls short of t_end: padding must not step
     np.testing.assert_allclose(float(a), float(b), rtol=1e-13)
     assert float(gb) != 0.0
     np.testing.assert_allclose(float(ga), float(gb), rtol=1e-10)
@@ -144,7 +148,7 @@ def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradien
 def test_auto_checkpointing_stores_each_step_only_within_its_memory_budget(small, monkeypatch):
     """checkpoint="auto" is "steps" while n_steps stored States (times an ensemble's members) fit
     in AUTO_STEPS_BYTES, "nested" beyond; the other names map as documented."""
-    sim = importlib.import_module("jaxmpm.simulate")     # the module (jaxmpm.simulate is the function)
+    sim = importlib.import_module("jaxmpm.simulate")  # the module (jaxmpm.simulate is the function)
 
     scene, params, state = small
     one = sim.state_bytes(state)
@@ -170,6 +174,7 @@ def test_a_default_gradient_stores_step_inputs_not_every_intermediate(small):
             p = params.with_constant("disk_a", "E", E)
             final, _ = jaxmpm.simulate(scene, p, state, t_end=1.5, n_out=1, n_steps=14, **checkpoint)
             return jnp.sum(final.mass * final.x[:, 1])
+
         return jax.jit(jax.grad(loss)).lower(1000.0).compile().memory_analysis().temp_size_in_bytes
 
     default, stored = temp_bytes(), temp_bytes(checkpoint=False)
@@ -198,8 +203,17 @@ def _derivatives(small, kinds):
 
     def loss(E, a, dt):
         p = params.with_constant("disk_a", "E", E).with_constant("disk_b", "E", E)
-        final, hist = jaxmpm.simulate(scene, p, dataclasses.replace(state, v=a * state.v), t_end=1.5, n_out=2,
-                                      n_steps=14, dt=dt, checkpoint="steps", allow_short=True)
+        final, hist = jaxmpm.simulate(
+            scene,
+            p,
+            dataclasses.replace(state, v=a * state.v),
+            t_end=1.5,
+            n_out=2,
+            n_steps=14,
+            dt=dt,
+            checkpoint="steps",
+            allow_short=True,
+        )
         return jnp.sum(final.mass * final.x[:, 0] * final.x[:, 1]) + jnp.sum(hist.stress[1, :, 0, 0]) * 1e-3
 
     args = (1000.0, 1.0, 0.1)
@@ -209,12 +223,18 @@ def _derivatives(small, kinds):
         reverse_cfl_dt=lambda: jax.grad(cfl, argnums=(0, 1))(1000.0, 1.0),
         forward=lambda: jax.jvp(loss, args, (1.0, 0.5, 0.01))[1],
         forward_E_only=lambda: jax.jvp(lambda E: loss(E, *args[1:]), (1000.0,), (1.0,))[1],
-        vmapped=lambda: jax.vmap(jax.grad(loss), in_axes=(0, None, None))(jnp.array([900.0, 1000.0]), *args[1:]))
+        vmapped=lambda: jax.vmap(jax.grad(loss), in_axes=(0, None, None))(jnp.array([900.0, 1000.0]), *args[1:]),
+    )
     return {k: every[k]() for k in kinds}
 
 
-@pytest.mark.parametrize("kinds", [pytest.param(("reverse", "reverse_cfl_dt", "forward"), marks=pytest.mark.slow),
-                                   pytest.param(("forward_E_only", "vmapped"), marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "kinds",
+    [
+        pytest.param(("reverse", "reverse_cfl_dt", "forward"), marks=pytest.mark.slow),
+        pytest.param(("forward_E_only", "vmapped"), marks=pytest.mark.slow),
+    ],
+)
 def test_marking_the_evolving_tangents_changes_no_derivative(small, monkeypatch, kinds):
     """`jaxmpm.tangents.evolving_tangents` (used by simulate) gives the state's fields their tangents before the scans (so
     that JAX linearizes each scan's body once): every derivative equals the one without it, for
@@ -246,7 +266,7 @@ def test_jaxmpm_jit_nested_in_another_jit_traces_its_function_once():
 
     assert float(jax.jit(jax.grad(f))(0.3)) == pytest.approx(np.cos(0.3) * 0.3 + np.sin(0.3), rel=1e-6)
     assert len(calls) == 1
-    assert float(f(0.4)) == pytest.approx(np.sin(0.4) * 0.4, rel=1e-6)       # top level: with the options
+    assert float(f(0.4)) == pytest.approx(np.sin(0.4) * 0.4, rel=1e-6)  # top level: with the options
     assert len(calls) == 2
 
 
@@ -258,6 +278,6 @@ def test_marked_tangents_carry_no_infinity_into_a_derivative(small):
     sim = importlib.import_module("jaxmpm.simulate")
     _, params, state = small
     marked_x = lambda E: sim.evolving_tangents(False, state, (E,)).x
-    assert float(jax.grad(lambda E: jnp.sum(marked_x(E) * jnp.inf) + E ** 2)(3.0)) == 6.0
+    assert float(jax.grad(lambda E: jnp.sum(marked_x(E) * jnp.inf) + E**2)(3.0)) == 6.0
     x_dot = jax.jvp(marked_x, (3.0,), (jnp.inf,))[1]
     assert x_dot.shape == state.x.shape and np.all(np.asarray(x_dot) == 0.0)

@@ -1,4 +1,5 @@
 """Bad input gets a clear ValueError that names the field and the allowed range."""
+
 import dataclasses
 
 import jax
@@ -14,8 +15,9 @@ MAT = Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3)
 
 
 def _scene(**kw):
-    args = dict(grid=Grid(cells=(10, 10), h=0.1), phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6))),),
-                materials=(MAT,))
+    args = dict(
+        grid=Grid(cells=(10, 10), h=0.1), phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6))),), materials=(MAT,)
+    )
     args.update(kw)
     return Scene(**args)
 
@@ -69,11 +71,14 @@ def test_dt_above_cfl_limit_says_the_limit():
     limit = 0.3 * 0.1 / (1e6 * (1 - 0.3) / ((1 + 0.3) * (1 - 0.6)) / 1000.0) ** 0.5
     with pytest.raises(ValueError, match=rf"dt = .* above the CFL limit: allowed \(0, {limit:.6g}\] s"):
         jaxmpm.simulate(scene, params, state, t_end=1e-2, dt=2 * limit)
-    jaxmpm.simulate(scene, params, state, t_end=2 * limit, dt=0.99 * limit, progress=False)   # below: runs
+    jaxmpm.simulate(scene, params, state, t_end=2 * limit, dt=0.99 * limit, progress=False)  # below: runs
 
 
 def test_unknown_material_key_lists_known_ones():
-    with pytest.raises(ValueError, match=r"phase\.block\.material = 'unobtainium' is an unknown material key: known keys are \[.*'al2024'.*'m'.*\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"phase\.block\.material = 'unobtainium' is an unknown material key: known keys are \[.*'al2024'.*'m'.*\]",
+    ):
         _scene(phases=(Phase("block", "unobtainium", Box((0.2, 0.2), (0.6, 0.6))),))
 
 
@@ -99,12 +104,21 @@ def test_scene_file_round_trip_and_valid_file():
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
 
 
-@pytest.mark.parametrize("text,match", [
-    (SCENE_TOML.replace("h = 0.1", "h = 0.1\nspacing = 2"), r"grid\.spacing is an unknown key: allowed keys are \['cells', 'h', 'origin'\]"),
-    (SCENE_TOML + "\nfoo = 1", r"phase\[0\]\.foo is an unknown key"),
-    ("colour = 'red'\n" + SCENE_TOML, r"colour is an unknown key: allowed top-level keys"),
-    (SCENE_TOML.replace("nu = 0.3", "nu = 0.3\nyield = 3e6"), r"materials\.m\.yield is not a constant of model 'linear_elastic'"),
-])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        (
+            SCENE_TOML.replace("h = 0.1", "h = 0.1\nspacing = 2"),
+            r"grid\.spacing is an unknown key: allowed keys are \['cells', 'h', 'origin'\]",
+        ),
+        (SCENE_TOML + "\nfoo = 1", r"phase\[0\]\.foo is an unknown key"),
+        ("colour = 'red'\n" + SCENE_TOML, r"colour is an unknown key: allowed top-level keys"),
+        (
+            SCENE_TOML.replace("nu = 0.3", "nu = 0.3\nyield = 3e6"),
+            r"materials\.m\.yield is not a constant of model 'linear_elastic'",
+        ),
+    ],
+)
 def test_unknown_toml_key(text, match):
     with pytest.raises(ValueError, match=match):
         jaxmpm.scenefile.scene_from_toml(text)
@@ -117,13 +131,16 @@ def test_malformed_toml_names_the_line(tmp_path):
         jaxmpm.load_scene(str(path))
 
 
-@pytest.mark.parametrize("old,new,match", [
-    ('cells = [10, 10]', 'cells = "ten"', r"grid\.cells = 'ten' is invalid: allowed a list of 1 to 3 integers"),
-    ('h = 0.1', 'h = -0.1', r"grid\.h = -0\.1 is invalid: allowed > 0 m"),
-    ('material = "m"', 'material = 3', r"phase\.block\.material = 3 is invalid"),
-    ('type = "box"', 'type = "cone"', r"phase\.block\.geometry\.type = 'cone' is invalid: allowed box \| sphere"),
-    ('name = "block"', 'name = "a b"', r"phase\.name = 'a b' is invalid"),
-])
+@pytest.mark.parametrize(
+    "old,new,match",
+    [
+        ("cells = [10, 10]", 'cells = "ten"', r"grid\.cells = 'ten' is invalid: allowed a list of 1 to 3 integers"),
+        ("h = 0.1", "h = -0.1", r"grid\.h = -0\.1 is invalid: allowed > 0 m"),
+        ('material = "m"', "material = 3", r"phase\.block\.material = 3 is invalid"),
+        ('type = "box"', 'type = "cone"', r"phase\.block\.geometry\.type = 'cone' is invalid: allowed box \| sphere"),
+        ('name = "block"', 'name = "a b"', r"phase\.name = 'a b' is invalid"),
+    ],
+)
 def test_wrong_types_and_values_in_scene_file(old, new, match):
     with pytest.raises(ValueError, match=match):
         jaxmpm.scenefile.scene_from_toml(SCENE_TOML.replace(old, new))
@@ -133,7 +150,9 @@ def test_particle_leaving_the_grid_stops_the_run_with_a_message():
     scene = _scene(phases=(Phase("block", "m", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
-    with pytest.raises(FloatingPointError, match=r"particle \d+ of phase 'block' is outside the grid at t = .* allowed"):
+    with pytest.raises(
+        FloatingPointError, match=r"particle \d+ of phase 'block' is outside the grid at t = .* allowed"
+    ):
         jaxmpm.simulate(scene, params, state, progress=False)
 
 
@@ -153,7 +172,9 @@ def test_debug_mode_names_the_step_where_a_particle_leaves_the_grid():
     scene = _scene(phases=(Phase("block", "m", Box((0.6, 0.4), (0.8, 0.6)), velocity=(40.0, 0.0)),), t_end=0.02)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
-    with pytest.raises(FloatingPointError, match=r"checkify: step \d+ of the chunk \(t = .* s\): a particle left the grid"):
+    with pytest.raises(
+        FloatingPointError, match=r"checkify: step \d+ of the chunk \(t = .* s\): a particle left the grid"
+    ):
         jaxmpm.simulate(scene, params, state, progress=False, debug=True)
 
 
@@ -161,8 +182,10 @@ def test_debug_mode_names_the_first_step_with_a_non_finite_field():
     scene = _scene(t_end=0.01)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
-    bad = dataclasses.replace(state, stress=state.stress.at[3].set(1e300))   # overflows: inf - inf
-    with pytest.raises(FloatingPointError, match=r"checkify: step 0 of the chunk \(t = 1e-06 s\): a particle field is not finite"):
+    bad = dataclasses.replace(state, stress=state.stress.at[3].set(1e300))  # overflows: inf - inf
+    with pytest.raises(
+        FloatingPointError, match=r"checkify: step 0 of the chunk \(t = 1e-06 s\): a particle field is not finite"
+    ):
         jaxmpm.simulate(scene, params, bad, progress=False, debug=True, dt=1e-6)
 
 
@@ -179,7 +202,9 @@ def test_debug_mode_gives_the_same_run():
 def test_fragmentation_option_round_trips_and_bad_values_are_named():
     scene = dataclasses.replace(jaxmpm.scenefile.scene_from_toml(SCENE_TOML), c_h=0.1, fragmentation="plastic")
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
-    with pytest.raises(ValueError, match=r"effects\.fragmentation = 'all' is invalid: allowed 'failed' \| 'plastic' \| 'tensile'"):
+    with pytest.raises(
+        ValueError, match=r"effects\.fragmentation = 'all' is invalid: allowed 'failed' \| 'plastic' \| 'tensile'"
+    ):
         dataclasses.replace(scene, fragmentation="all")
     with pytest.raises(ValueError, match=r"effects\.fragmentation = 3 is invalid"):
         jaxmpm.scenefile.scene_from_toml(SCENE_TOML + "\n[effects]\nc_h = 0.1\nfragmentation = 3\n")
@@ -196,11 +221,14 @@ def test_difference_geometry_samples_around_the_hole_round_trips_and_names_bad_p
     scene = _scene(phases=(Phase("body", "m", hole), Phase("fluid", "m", around, field=1)))
     body, fluid = (sample_phase(scene.grid, p) for p in scene.phases)
     full = sample_phase(scene.grid, Phase("all", "m", Box((0.0, 0.0), (1.0, 1.0))))
-    assert len(body) > 0 and len(fluid) + len(body) + 16 == len(full)       # the corner box holds 4 x 4 points
+    assert len(body) > 0 and len(fluid) + len(body) + 16 == len(full)  # the corner box holds 4 x 4 points
     assert not np.any(np.sum((fluid - 0.5) ** 2, 1) < 0.2**2)
     assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
-    text = 'type = "cone"'.join(jaxmpm.scene_to_toml(scene).rsplit('type = "sphere"', 1))   # the hole's
-    with pytest.raises(ValueError, match=r"phase\.fluid\.geometry\.minus\[0\]\.type = 'cone' is invalid: allowed box \| sphere \| difference"):
+    text = 'type = "cone"'.join(jaxmpm.scene_to_toml(scene).rsplit('type = "sphere"', 1))  # the hole's
+    with pytest.raises(
+        ValueError,
+        match=r"phase\.fluid\.geometry\.minus\[0\]\.type = 'cone' is invalid: allowed box \| sphere \| difference",
+    ):
         jaxmpm.scenefile.scene_from_toml(text)
     with pytest.raises(ValueError, match=r"geometry\.base = .* allowed a Box or Sphere"):
         Difference("box", ())

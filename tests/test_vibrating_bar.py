@@ -3,6 +3,7 @@
 Convergence order of DDMP at small amplitude with CFL 0.02 (time error below the spatial one),
 DDMP against standard MPM at v0 = 0.1 m/s where particles cross cells, energy conservation.
 """
+
 import dataclasses
 import math
 
@@ -45,8 +46,10 @@ def test_ddmp_10x_below_linear_where_particles_cross_cells():
     period = 2 * math.pi / OMEGA
     e_ddmp, drift_ddmp = run_bar(100, "ddmp", 0.1, 0.02, period)
     e_lin, _ = run_bar(100, "linear", 0.1, 0.02, period)
-    print(f"v0 = 0.1, 100 cells, one period: DDMP {e_ddmp:.3g} m, linear {e_lin:.3g} m, ratio {e_lin / e_ddmp:.1f}; "
-          f"DDMP energy drift {drift_ddmp:.2e}")
+    print(
+        f"v0 = 0.1, 100 cells, one period: DDMP {e_ddmp:.3g} m, linear {e_lin:.3g} m, ratio {e_lin / e_ddmp:.1f}; "
+        f"DDMP energy drift {drift_ddmp:.2e}"
+    )
     assert e_lin >= 10 * e_ddmp
     assert abs(drift_ddmp) < 0.01
 
@@ -79,11 +82,14 @@ def test_a_scene_of_ones_own_named_like_the_bar_keeps_its_initial_velocity():
     a 2D block of one's own named 'vibrating_bar' starts at its own uniform 1 m/s."""
     from jaxmpm import Box, Grid, Material, Phase, Scene
 
-    own = Scene(name="vibrating_bar", grid=Grid(cells=(10, 10), h=0.1),
-                materials=(Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3),),
-                phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6)), velocity=(1.0, 0.0)),))
+    own = Scene(
+        name="vibrating_bar",
+        grid=Grid(cells=(10, 10), h=0.1),
+        materials=(Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3),),
+        phases=(Phase("block", "m", Box((0.2, 0.2), (0.6, 0.6)), velocity=(1.0, 0.0)),),
+    )
     v = np.asarray(initial_state(own, jaxmpm.default_params(own)).v)
     np.testing.assert_array_equal(v, np.broadcast_to([1.0, 0.0], v.shape))
     bar = vibrating_bar(cells=20, v0=0.5)
-    state = initial_state(bar, jaxmpm.default_params(bar))     # the built-in at other options: the mode shape
+    state = initial_state(bar, jaxmpm.default_params(bar))  # the built-in at other options: the mode shape
     np.testing.assert_allclose(np.asarray(state.v[:, 0]), 0.5 * np.sin(BETA * np.asarray(state.x[:, 0])), rtol=1e-12)

@@ -3,6 +3,7 @@ operators on each field's block (values, gradients with respect to the nodal inp
 nodal volume, 1D/2D/3D and axisymmetric, blocks that hold their field and blocks that do not,
 which fall back to the whole grid), the exchange on the block of shared nodes, and a whole run
 of a three-field impact (values; a gradient in the slow set)."""
+
 import dataclasses
 
 import jax
@@ -65,8 +66,12 @@ def test_operators_on_blocks_equal_the_whole_grid(case):
 
     def outputs(nv, shv, v, p, shp, window):
         dg = ddmp.build(grid, nv, cv, axisymmetric, window)
-        return (ddmp.nodal_stress_force(grid, dg, shv), ddmp.nodal_velocity_gradient(grid, dg, v),
-                ddmp.nodal_interface_force(grid, dg, shp, p), ddmp.nodal_interface_force(grid, dg, None, p))
+        return (
+            ddmp.nodal_stress_force(grid, dg, shv),
+            ddmp.nodal_velocity_gradient(grid, dg, v),
+            ddmp.nodal_interface_force(grid, dg, shp, p),
+            ddmp.nodal_interface_force(grid, dg, None, p),
+        )
 
     args = (nv, shv, v, p, shp)
     weights = [jnp.asarray(rng.normal(size=o.shape)) for o in jax.eval_shape(lambda *a: outputs(*a, None), *args)]
@@ -74,7 +79,7 @@ def test_operators_on_blocks_equal_the_whole_grid(case):
     def loss(window):
         return lambda *a: sum(jnp.sum(w * jnp.sin(o)) for w, o in zip(weights, outputs(*a, window)))
 
-    def both(*a):   # one program for the whole grid and the blocks, values and gradients
+    def both(*a):  # one program for the whole grid and the blocks, values and gradients
         grads = [jax.grad(loss(w_), argnums=tuple(range(5)))(*a) for w_ in (None, window)]
         return outputs(*a, None), outputs(*a, window), grads
 
@@ -82,7 +87,7 @@ def test_operators_on_blocks_equal_the_whole_grid(case):
     for a, b in zip(whole, blocks_):
         assert float(jnp.max(jnp.abs(a))) > 0
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))
-    for a, b in zip(g_whole, g_blocks):   # the nodal volume's gradient reaches the operators through A and V
+    for a, b in zip(g_whole, g_blocks):  # the nodal volume's gradient reaches the operators through A and V
         np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-11 * float(jnp.max(jnp.abs(a))))
 
 
@@ -111,13 +116,13 @@ def test_a_vmapped_batch_with_and_without_fitting_fields_equals_the_whole_grid()
 
 def test_window_origin_follows_the_field_and_says_when_it_does_not_fit():
     cv = np.zeros((3, 10, 8))
-    cv[0, 2:5, 3:6] = 1.0       # fits a 4 x 3 block starting at its first cell
-    cv[1, 7:10, 6:8] = 1.0      # at the grid's far corner: the block is moved back inside the grid
-    cv[2, 0:6, 0:2] = 1.0       # 6 cells along x: does not fit 4
+    cv[0, 2:5, 3:6] = 1.0  # fits a 4 x 3 block starting at its first cell
+    cv[1, 7:10, 6:8] = 1.0  # at the grid's far corner: the block is moved back inside the grid
+    cv[2, 0:6, 0:2] = 1.0  # 6 cells along x: does not fit 4
     origin, fits = ddmp.window_origin(jnp.asarray(cv), (4, 3))
     np.testing.assert_array_equal(origin, [[2, 3], [6, 5], [0, 0]])
     np.testing.assert_array_equal(fits, [True, True, False])
-    origin, fits = ddmp.window_origin(jnp.zeros((1, 10, 8)), (4, 3))     # an empty field fits anywhere
+    origin, fits = ddmp.window_origin(jnp.zeros((1, 10, 8)), (4, 3))  # an empty field fits anywhere
     assert bool(fits[0])
 
 
@@ -125,14 +130,18 @@ def impact(window=None, n=32):
     """Three aluminium blocks as three fields on an n^2 grid: a striker at 500 m/s onto a plate on a
     backing block (benchmarks/multifield_cost.py's scene, coarser)."""
     al = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.33)
-    phases = (Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=0),
-              Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=1),
-              Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=2))
+    phases = (
+        Phase("striker", "al", Box((0.40, 0.62), (0.60, 0.80)), velocity=(0.0, -500.0), field=0),
+        Phase("plate", "al", Box((0.20, 0.50), (0.80, 0.60)), field=1),
+        Phase("backing", "al", Box((0.20, 0.20), (0.80, 0.48)), field=2),
+    )
     return Scene(grid=Grid(cells=(n, n), h=1.0 / n), materials=(al,), phases=phases, drag=1e3, window=window)
 
 
-@pytest.mark.parametrize("shared_block,fits", [(((10, 12), (20, 18)), True),
-                                               pytest.param(((2, 12), (30, 18)), False, marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "shared_block,fits",
+    [(((10, 12), (20, 18)), True), pytest.param(((2, 12), (30, 18)), False, marks=pytest.mark.slow)],
+)
 def test_exchange_on_the_shared_block_equals_the_whole_grid(shared_block, fits):
     """Random nodal masses, volumes and velocities of three fields: each field has volume on its own
     region, and two or more share the nodes of `shared_block` (lo, hi per axis); the window
@@ -150,7 +159,7 @@ def test_exchange_on_the_shared_block_equals_the_whole_grid(shared_block, fits):
     present[2, 25:33, 25:33] = True
     (x0, y0), (x1, y1) = shared_block
     present[0, x0:x1, y0:y1] = present[1, x0:x1, y0:y1] = True
-    present[2, x0:x1, y0:y0 + 2] = True
+    present[2, x0:x1, y0 : y0 + 2] = True
     vol = jnp.asarray(np.where(present, rng.uniform(0.1, 1, present.shape), 0.0).reshape(3, -1) * scene.grid.h**2)
     m = vol * 2700.0
     v = jnp.asarray(rng.normal(size=(3, vol.shape[1], 2)) * 50.0)
@@ -160,11 +169,13 @@ def test_exchange_on_the_shared_block_equals_the_whole_grid(shared_block, fits):
     def force(lay, m, vol, v):
         return exchange_force(lay, params, m, vol, v, dt, 1e-20)
 
-    w = jnp.asarray(rng.normal(size=v.shape)) / (2700.0 * float(jnp.max(vol)) * 1e6)   # ~ 1 / F
+    w = jnp.asarray(rng.normal(size=v.shape)) / (2700.0 * float(jnp.max(vol)) * 1e6)  # ~ 1 / F
 
-    def both(*a):   # one program: values and gradients, whole grid and blocks
-        return [(force(l, *a), jax.grad(lambda *a: jnp.sum(w * force(l, *a) ** 2), argnums=(0, 1, 2))(*a))
-                for l in (whole, lay)]
+    def both(*a):  # one program: values and gradients, whole grid and blocks
+        return [
+            (force(l, *a), jax.grad(lambda *a: jnp.sum(w * force(l, *a) ** 2), argnums=(0, 1, 2))(*a))
+            for l in (whole, lay)
+        ]
 
     (F0, g0), (F1, g1) = jax.jit(both)(m, vol, v)
     assert float(jnp.max(jnp.abs(F0))) > 0
@@ -205,7 +216,7 @@ def test_a_three_field_impact_on_blocks_runs_as_on_the_whole_grid():
     """Blocks that hold every field (the striker's block follows it down) and blocks too small for
     the backing field (the whole grid every step): the run of the whole grid to round-off."""
     ref, _ = impact_run(None, False)
-    assert float(jnp.max(jnp.abs(ref.stress))) > 1e8          # the blocks are in contact
+    assert float(jnp.max(jnp.abs(ref.stress))) > 1e8  # the blocks are in contact
     for window in ((21, 10), (8, 8)):
         assert_same_run(ref, impact_run(window, False)[0], window)
 
@@ -220,8 +231,16 @@ def test_a_three_field_impact_on_blocks_has_the_whole_grids_gradient():
     np.testing.assert_allclose([l, g], [l0, g0], rtol=1e-9)
 
 
-@pytest.mark.parametrize("window,why", [((0, 4), "1..grid.cells"), ((4,), "2 integers"), ((40, 4), "1..grid.cells"),
-                                        ((4.0, 4), "integers"), ("4", "integers")])
+@pytest.mark.parametrize(
+    "window,why",
+    [
+        ((0, 4), "1..grid.cells"),
+        ((4,), "2 integers"),
+        ((40, 4), "1..grid.cells"),
+        ((4.0, 4), "integers"),
+        ("4", "integers"),
+    ],
+)
 def test_bad_windows_are_named(window, why):
     with pytest.raises(ValueError, match="window") as e:
         impact(window)
@@ -231,8 +250,13 @@ def test_bad_windows_are_named(window, why):
 def test_window_needs_operators_to_put_on_blocks_and_survives_the_scene_file():
     rock = jaxmpm.Material.make("rock", "linear_elastic", rho0=2000.0, E=1e9, nu=0.25)
     with pytest.raises(ValueError, match="window.*DDMP operators"):
-        Scene(grid=Grid(cells=(10, 10), h=0.1), materials=(rock,), shape="linear",
-              phases=(Phase("a", "rock", Box((0.2, 0.2), (0.5, 0.5))),), window=(4, 4))
+        Scene(
+            grid=Grid(cells=(10, 10), h=0.1),
+            materials=(rock,),
+            shape="linear",
+            phases=(Phase("a", "rock", Box((0.2, 0.2), (0.5, 0.5))),),
+            window=(4, 4),
+        )
     scene = impact((21, 10))
     assert scene_from_toml(scene_to_toml(scene)) == scene
     assert "window = [21, 10]" in scene_to_toml(scene)

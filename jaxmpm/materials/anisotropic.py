@@ -15,6 +15,7 @@ sigma^ = R^T sigma R obeys d sigma^/dt = C : (R^T D R); the fibre of each partic
 own R, so the direction is carried per particle. Constants: rho0, E1, E2, nu12, nu23, G12 (SI),
 fibre_theta, fibre_phi (rad).
 """
+
 from __future__ import annotations
 
 import math
@@ -24,12 +25,18 @@ import jax.numpy as jnp
 import numpy as np
 
 _P = (0.0, math.inf, False, False)
-CONSTANTS = {"rho0": _P + ("kg/m^3",), "E1": _P + ("Pa",), "E2": _P + ("Pa",),
-             "nu12": (-1.0, 0.5, False, False, ""), "nu23": (-1.0, 1.0, False, False, ""), "G12": _P + ("Pa",),
-             "fibre_theta": (-2 * math.pi, 2 * math.pi, True, True, "rad"),
-             "fibre_phi": (-0.5 * math.pi, 0.5 * math.pi, True, True, "rad")}
+CONSTANTS = {
+    "rho0": _P + ("kg/m^3",),
+    "E1": _P + ("Pa",),
+    "E2": _P + ("Pa",),
+    "nu12": (-1.0, 0.5, False, False, ""),
+    "nu23": (-1.0, 1.0, False, False, ""),
+    "G12": _P + ("Pa",),
+    "fibre_theta": (-2 * math.pi, 2 * math.pi, True, True, "rad"),
+    "fibre_phi": (-0.5 * math.pi, 0.5 * math.pi, True, True, "rad"),
+}
 _VOIGT = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
-_VOIGT_INDEX = np.array([[_VOIGT.index((min(a, b), max(a, b))) for b in range(3)] for a in range(3)])   # (3, 3)
+_VOIGT_INDEX = np.array([[_VOIGT.index((min(a, b), max(a, b))) for b in range(3)] for a in range(3)])  # (3, 3)
 
 
 def voigt_stiffness(c):
@@ -37,12 +44,16 @@ def voigt_stiffness(c):
     E1, E2, n12, n23, G12 = c["E1"], c["E2"], c["nu12"], c["nu23"], c["G12"]
     G23 = E2 / (2 * (1 + n23))
     z = jnp.zeros_like(E1)
-    S = jnp.array([[1 / E1, -n12 / E1, -n12 / E1, z, z, z],
-                   [-n12 / E1, 1 / E2, -n23 / E2, z, z, z],
-                   [-n12 / E1, -n23 / E2, 1 / E2, z, z, z],
-                   [z, z, z, 1 / G23, z, z],
-                   [z, z, z, z, 1 / G12, z],
-                   [z, z, z, z, z, 1 / G12]])
+    S = jnp.array(
+        [
+            [1 / E1, -n12 / E1, -n12 / E1, z, z, z],
+            [-n12 / E1, 1 / E2, -n23 / E2, z, z, z],
+            [-n12 / E1, -n23 / E2, 1 / E2, z, z, z],
+            [z, z, z, 1 / G23, z, z],
+            [z, z, z, z, 1 / G12, z],
+            [z, z, z, z, z, 1 / G12],
+        ]
+    )
     return jnp.linalg.inv(S), S
 
 
@@ -57,7 +68,7 @@ def fibre_frame(c):
 def stiffness_tensor(c, dim):
     """C_ijkl in the reference frame, restricted to the first `dim` axes. (d, d, d, d) Pa."""
     Cv, _ = voigt_stiffness(c)
-    C = Cv[_VOIGT_INDEX[:, :, None, None], _VOIGT_INDEX[None, None, :, :]]      # one gather: C_abef = Cv[V(ab), V(ef)]
+    C = Cv[_VOIGT_INDEX[:, :, None, None], _VOIGT_INDEX[None, None, :, :]]  # one gather: C_abef = Cv[V(ab), V(ef)]
     Q = fibre_frame(c)
     C = jnp.einsum("ia,jb,kc,ld,abcd->ijkl", Q, Q, Q, Q, C)
     return C[:dim, :dim, :dim, :dim]
@@ -73,7 +84,7 @@ def polar_rotation(F):
         c, s = jnp.cos(a), jnp.sin(a)
         return jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)
     R = F
-    for _ in range(8):      # Higham's iteration R <- (R + R^-T) / 2
+    for _ in range(8):  # Higham's iteration R <- (R + R^-T) / 2
         R = 0.5 * (R + jnp.swapaxes(jnp.linalg.inv(R), -1, -2))
     return R
 

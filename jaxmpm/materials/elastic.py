@@ -8,6 +8,7 @@ deformations.
 
 Shapes: F, stress, L are (N, d, d); constants are scalars (or broadcastable); SI units.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -47,6 +47,7 @@ Failure (damage in [0, 1], failed at 1; failed: s = 0 and p >= 0):
                          positive in tension); constants D1..D5, epsdot0, T_room, T_melt, cp
   plastic_strain         damage = eps_p / eps_f                                  eps_f
 """
+
 from __future__ import annotations
 
 import math
@@ -57,8 +58,8 @@ import jax
 import jax.numpy as jnp
 
 INF = math.inf
-POS = (0.0, INF, False, False)          # > 0
-NONNEG = (0.0, INF, True, False)        # >= 0
+POS = (0.0, INF, False, False)  # > 0
+NONNEG = (0.0, INF, True, False)  # >= 0
 ANY = (-INF, INF, False, False)
 
 
@@ -89,10 +90,10 @@ def _mie_gruneisen(c, rho):
     mu = rho / rho0 - 1
     k = rho0 * c0**2
     mu_c = jnp.maximum(mu, 0.0)
-    den = jnp.maximum(1 - (s - 1) * mu_c, 0.05)        # the Hugoniot's limiting compression
+    den = jnp.maximum(1 - (s - 1) * mu_c, 0.05)  # the Hugoniot's limiting compression
     comp = k * mu_c * (1 + (1 - g0 / 2) * mu_c - a / 2 * mu_c**2) / den**2
     A = jnp.where(mu > 0, comp, k * mu)
-    return A, jnp.where(mu > 0, (g0 + a * mu) * rho0, g0 * rho)     # expansion: Gamma = gamma0 (gas-like)
+    return A, jnp.where(mu > 0, (g0 + a * mu) * rho0, g0 * rho)  # expansion: Gamma = gamma0 (gas-like)
 
 
 def _linear(c, rho):
@@ -102,20 +103,36 @@ def _linear(c, rho):
 _RHO0 = {"rho0": POS + ("kg/m^3",)}
 _GAMMA = {"gamma": (1.0, INF, False, False, "")}
 EOS = {
-    "ideal_gas": Part({**_RHO0, **_GAMMA, "p0": NONNEG + ("Pa",)}, _ideal_gas,
-                      lambda c: (c["p0"], c["p0"] / ((c["gamma"] - 1) * c["rho0"]))),
-    "stiffened_gas": Part({**_RHO0, **_GAMMA, "p_inf": NONNEG + ("Pa",), "p0": ANY + ("Pa",)}, _stiffened_gas,
-                          lambda c: (c["p0"], (c["p0"] + c["gamma"] * c["p_inf"]) / ((c["gamma"] - 1) * c["rho0"]))),
-    "tait": Part({**_RHO0, "tait_n": POS + ("",), "tait_B": POS + ("Pa",), "p0": ANY + ("Pa",)}, _tait,
-                 lambda c: (c["p0"], 0.0)),
-    "mie_gruneisen": Part({**_RHO0, "c0": POS + ("m/s",), "s": POS + ("",), "gamma0": NONNEG + ("",),
-                           "a": (-10.0, 10.0, True, True, "")}, _mie_gruneisen, lambda c: (0.0, 0.0)),
+    "ideal_gas": Part(
+        {**_RHO0, **_GAMMA, "p0": NONNEG + ("Pa",)},
+        _ideal_gas,
+        lambda c: (c["p0"], c["p0"] / ((c["gamma"] - 1) * c["rho0"])),
+    ),
+    "stiffened_gas": Part(
+        {**_RHO0, **_GAMMA, "p_inf": NONNEG + ("Pa",), "p0": ANY + ("Pa",)},
+        _stiffened_gas,
+        lambda c: (c["p0"], (c["p0"] + c["gamma"] * c["p_inf"]) / ((c["gamma"] - 1) * c["rho0"])),
+    ),
+    "tait": Part(
+        {**_RHO0, "tait_n": POS + ("",), "tait_B": POS + ("Pa",), "p0": ANY + ("Pa",)}, _tait, lambda c: (c["p0"], 0.0)
+    ),
+    "mie_gruneisen": Part(
+        {**_RHO0, "c0": POS + ("m/s",), "s": POS + ("",), "gamma0": NONNEG + ("",), "a": (-10.0, 10.0, True, True, "")},
+        _mie_gruneisen,
+        lambda c: (0.0, 0.0),
+    ),
     "linear": Part({**_RHO0, "K": POS + ("Pa",)}, _linear, lambda c: (0.0, 0.0)),
 }
 
 _G = {"G": POS + ("Pa",)}
-_JC = {**_G, "A": POS + ("Pa",), "B": NONNEG + ("Pa",), "n": (0.0, 1.0, False, True, ""),
-       "C": NONNEG + ("",), "epsdot0": POS + ("1/s",)}
+_JC = {
+    **_G,
+    "A": POS + ("Pa",),
+    "B": NONNEG + ("Pa",),
+    "n": (0.0, 1.0, False, True, ""),
+    "C": NONNEG + ("",),
+    "epsdot0": POS + ("1/s",),
+}
 _THERMAL = {"T_room": POS + ("K",), "T_melt": POS + ("K",), "cp": POS + ("J/(kg K)",)}
 STRENGTH = {
     "elastic": Part(_G),
@@ -128,8 +145,17 @@ STRENGTH = {
 }
 FAILURE = {
     "spall": Part({"sigma_spall": POS + ("Pa",)}),
-    "johnson_cook_failure": Part({"D1": ANY + ("",), "D2": ANY + ("",), "D3": ANY + ("",), "D4": ANY + ("",),
-                                  "D5": ANY + ("",), "epsdot0": POS + ("1/s",), **_THERMAL}),
+    "johnson_cook_failure": Part(
+        {
+            "D1": ANY + ("",),
+            "D2": ANY + ("",),
+            "D3": ANY + ("",),
+            "D4": ANY + ("",),
+            "D5": ANY + ("",),
+            "epsdot0": POS + ("1/s",),
+            **_THERMAL,
+        }
+    ),
     "plastic_strain": Part({"eps_f": POS + ("",)}),
 }
 
@@ -196,9 +222,11 @@ def largest_eigenvalue_3x3(s):
     p = jnp.sqrt(jnp.sum(B * B, axis=(-1, -2)) / 6)
     safe = jnp.where(p > 0, p, 1.0)
     C = B / safe[:, None, None]
-    det = (C[:, 0, 0] * (C[:, 1, 1] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 1])
-           - C[:, 0, 1] * (C[:, 1, 0] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 0])
-           + C[:, 0, 2] * (C[:, 1, 0] * C[:, 2, 1] - C[:, 1, 1] * C[:, 2, 0]))
+    det = (
+        C[:, 0, 0] * (C[:, 1, 1] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 1])
+        - C[:, 0, 1] * (C[:, 1, 0] * C[:, 2, 2] - C[:, 1, 2] * C[:, 2, 0])
+        + C[:, 0, 2] * (C[:, 1, 0] * C[:, 2, 1] - C[:, 1, 1] * C[:, 2, 0])
+    )
     r = jnp.clip(det / 2, -1.0, 1.0)
     return q + jnp.where(p > 0, 2 * p * jnp.cos(jnp.arccos(r) / 3), 0.0)
 
@@ -227,7 +255,7 @@ def thermal_softening(strength, c, e):
     return jnp.ones_like(e)
 
 
-EPS_P_RAMP = 1e-12   # plastic strain below which Johnson-Cook's hardening is linear in eps_p (`_flow_stress`)
+EPS_P_RAMP = 1e-12  # plastic strain below which Johnson-Cook's hardening is linear in eps_p (`_flow_stress`)
 
 
 def _flow_stress(strength, c, eps, epsdot, softening, p):
@@ -268,18 +296,20 @@ def _implicit_root(residual, solve, dl0, *inputs):
     sg = jax.lax.stop_gradient
     dl = solve(sg(dl0), *sg(inputs))
     f, slope = residual(dl, *inputs)
-    step = f / sg(slope)                  # about zero at the root; its tangent is the root's
+    step = f / sg(slope)  # about zero at the root; its tangent is the root's
     return dl + (step - sg(step))
 
 
 def _newton(residual, iterations):
     """solve(dl0, *inputs): `iterations` Newton steps on residual from dl0, kept in [0, dl0]."""
+
     def solve(dl0, *inputs):
         dl = dl0
         for _ in range(iterations):
             f, slope = residual(dl, *inputs)
             dl = jnp.clip(dl + f / slope, 0.0, dl0)
         return dl
+
     return solve
 
 
@@ -290,6 +320,7 @@ def _bracketed_newton(residual, iterations):
     decades below dl0); bisection where that leaves it too. Bisection alone as the fallback left
     |f| at 1e-3 of sigma_eq_trial after 20 steps and 2e-9 after 30 on the sampled states of
     `_implicit_root`; with the log step 3e-9 after 10 and 2e-10 after 15."""
+
     def solve(dl0, *inputs):
         dl, lo, hi = dl0, jnp.zeros_like(dl0), dl0
         for _ in range(iterations):
@@ -297,9 +328,11 @@ def _bracketed_newton(residual, iterations):
             lo, hi = jnp.where(f > 0, dl, lo), jnp.where(f > 0, hi, dl)
             step = dl + f / slope
             log_step = dl * jnp.exp(jnp.clip(f / (slope * jnp.where(dl > 0, dl, 1.0)), -50.0, 50.0))
-            dl = jnp.where((step > lo) & (step < hi), step,
-                           jnp.where((log_step > lo) & (log_step < hi), log_step, 0.5 * (lo + hi)))
+            dl = jnp.where(
+                (step > lo) & (step < hi), step, jnp.where((log_step > lo) & (log_step < hi), log_step, 0.5 * (lo + hi))
+            )
         return dl
+
     return solve
 
 
@@ -319,12 +352,14 @@ def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
     dl0 = jnp.where(plastic, (seq - Y0) / (3 * G), 0.0)
     dl = dl0
     if strength.startswith("johnson_cook") and not plastic_rate:
+
         def residual(dl, c, seq, eps, epsdot, e, p):
             Y, dY = _flow_stress(strength, c, eps + dl, epsdot, e, p)
             return seq - 3 * c["G"] * dl - Y, 3 * c["G"] + dY
 
         dl = _implicit_root(residual, _newton(residual, iterations), dl0, c, seq, eps, epsdot, soft, p)
-    elif plastic_rate:      # f(0+) > 0 > f(dl0)
+    elif plastic_rate:  # f(0+) > 0 > f(dl0)
+
         def residual(dl, c, seq, eps, e, p, dt):
             rate = dl / dt
             Y, dY = _flow_stress(strength, c, eps + dl, rate, e, p)
@@ -347,9 +382,11 @@ def failure_increment(kind, c, damage, eps_new, dl, epsdot, e, s, P):
         return jnp.maximum(damage, eps_new / c["eps_f"])
     seq = equivalent_stress(s)
     triax = jnp.clip(-P / seq, -10.0, 10.0)
-    eps_f = ((c["D1"] + c["D2"] * jnp.exp(c["D3"] * triax))
-             * (1 + c["D4"] * jnp.log(jnp.maximum(epsdot / c["epsdot0"], 1.0)))
-             * (1 + c["D5"] * homologous_temperature(c, e)))
+    eps_f = (
+        (c["D1"] + c["D2"] * jnp.exp(c["D3"] * triax))
+        * (1 + c["D4"] * jnp.log(jnp.maximum(epsdot / c["epsdot0"], 1.0)))
+        * (1 + c["D5"] * homologous_temperature(c, e))
+    )
     return damage + dl / jnp.maximum(eps_f, 1e-6)
 
 
@@ -434,8 +471,9 @@ def compose(eos, strength, failure):
             p_new = jnp.where(failed, jnp.maximum(p_new, 0.0), p_new)
             e_new = mp.energy + w_dev - h * (a_old * p_old + a_new * (p_new + qn))
         P = p_new + qn
-        return mp._replace(F=F, stress=s_new - P[:, None, None] * eye, pressure=P, energy=e_new,
-                           eps_ps=eps_new, damage=damage)
+        return mp._replace(
+            F=F, stress=s_new - P[:, None, None] * eye, pressure=P, energy=e_new, eps_ps=eps_new, damage=damage
+        )
 
     def initial(c):
         return EOS[eos].initial(c)

@@ -9,6 +9,7 @@ and any other model kind whose constants the table holds: `library_material("al2
 rest). Users define their own materials in a scene (Python or the `[materials.<key>]` tables of a
 scene file, with `library = "<key>"` to start from a library entry and override constants).
 """
+
 from __future__ import annotations
 
 import functools
@@ -42,10 +43,14 @@ class Material:
         pairs = self.constants
         if isinstance(pairs, dict):
             pairs = tuple(pairs.items())
-        if not (isinstance(pairs, (tuple, list)) and all(isinstance(c, (tuple, list)) and len(c) == 2
-                                                         and isinstance(c[0], str) for c in pairs)):
-            raise ValueError(f"{where}.constants = {self.constants!r} is invalid: allowed a tuple of (name, value) "
-                             "pairs, e.g. (('rho0', 1000.0), ('E', 1e9), ('nu', 0.3)); or use Material.make")
+        if not (
+            isinstance(pairs, (tuple, list))
+            and all(isinstance(c, (tuple, list)) and len(c) == 2 and isinstance(c[0], str) for c in pairs)
+        ):
+            raise ValueError(
+                f"{where}.constants = {self.constants!r} is invalid: allowed a tuple of (name, value) "
+                "pairs, e.g. (('rho0', 1000.0), ('E', 1e9), ('nu', 0.3)); or use Material.make"
+            )
         names = [c[0] for c in pairs]
         if len(set(names)) != len(names):
             dup = sorted({n for n in names if names.count(n) > 1})[0]
@@ -76,12 +81,16 @@ def _outside_this_module() -> int:
     __init__: the user's line that made the Material, by `Material(...)` or `Material.make`."""
     import sys
 
-    frame, level = sys._getframe(1), 2          # __post_init__ is level 2 as seen from the warning
+    frame, level = sys._getframe(1), 2  # __post_init__ is level 2 as seen from the warning
     while frame is not None:
         inner = frame
         frame, level = frame.f_back, level + 1
-        generated_init = (frame is not None and frame.f_code.co_filename == "<string>" and frame.f_code.co_name == "__init__"
-                          and inner.f_code.co_name == "__post_init__")
+        generated_init = (
+            frame is not None
+            and frame.f_code.co_filename == "<string>"
+            and frame.f_code.co_name == "__init__"
+            and inner.f_code.co_name == "__post_init__"
+        )
         if frame is None or not (frame.f_code.co_filename == __file__ or generated_init):
             return level
     return level
@@ -118,8 +127,8 @@ def _checked_constants(key, model, constants: dict) -> dict[str, float]:
 
 # Above these a material at rest is not a real one: the densest element (osmium) has 22,590 kg/m^3,
 # the fastest longitudinal sound speed (diamond) is about 18 km/s.
-DENSEST = 2.5e4         # kg/m^3
-FASTEST = 2.5e4         # m/s
+DENSEST = 2.5e4  # kg/m^3
+FASTEST = 2.5e4  # m/s
 
 
 def warn_implausible_units(where: str, model: str, constants: dict, stacklevel: int = 3) -> None:
@@ -133,16 +142,24 @@ def warn_implausible_units(where: str, model: str, constants: dict, stacklevel: 
     if rho0 is None:
         return
     m = model_of(model)
-    with jax.ensure_compile_time_eval():          # materials are also resolved while a step is traced
+    with jax.ensure_compile_time_eval():  # materials are also resolved while a step is traced
         e0 = m.initial(constants)[1]
         c0 = float(np.asarray(m.wave_speed(constants, np.array([rho0]), np.array([float(e0)]), 3))[0])
     if rho0 > DENSEST:
-        warnings.warn(f"{where}.rho0 = {rho0:g} kg/m^3 is denser than any real material (osmium: 22,590): "
-                      "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)", UserWarning, stacklevel=stacklevel)
+        warnings.warn(
+            f"{where}.rho0 = {rho0:g} kg/m^3 is denser than any real material (osmium: 22,590): "
+            "density is in kg/m^3 (1 g/cm^3 = 1000 kg/m^3)",
+            UserWarning,
+            stacklevel=stacklevel,
+        )
     if c0 > FASTEST:
-        warnings.warn(f"{where}: its wave speed at rest is {c0:,.0f} m/s, faster than any real material's "
-                      "(diamond: about 18,000): are the constants in SI units (rho0 in kg/m^3, moduli in Pa)? "
-                      "With rho0 in g/cm^3 the speed comes out 32x too fast", UserWarning, stacklevel=stacklevel)
+        warnings.warn(
+            f"{where}: its wave speed at rest is {c0:,.0f} m/s, faster than any real material's "
+            "(diamond: about 18,000): are the constants in SI units (rho0 in kg/m^3, moduli in Pa)? "
+            "With rho0 in g/cm^3 the speed comes out 32x too fast",
+            UserWarning,
+            stacklevel=stacklevel,
+        )
 
 
 CHECK_FIELDS = ("checked", "read", "derived", "note")
@@ -163,7 +180,9 @@ def merge_checks(table: dict, checks: dict) -> dict:
                 raise ValueError(f"{where} names no sub-table of materials.toml")
             unknown = sorted(set(check) - {"verified", "source", "values", *CHECK_FIELDS})
             if unknown:
-                raise ValueError(f"{where}.{unknown[0]} is unknown: allowed verified, source, values, {', '.join(CHECK_FIELDS)}")
+                raise ValueError(
+                    f"{where}.{unknown[0]} is unknown: allowed verified, source, values, {', '.join(CHECK_FIELDS)}"
+                )
             t = table[key][sub]
             for name, value in check.get("values", {}).items():
                 if name not in t:
@@ -214,7 +233,7 @@ def constant_origins(key: str, model: str | None = None) -> dict[str, tuple[floa
         pool["tait_n"], pool["tait_B"] = (float(entry["tait"]["n"]), "tait"), (float(entry["tait"]["B"]), "tait")
         if isinstance(model, str) and model.split("+")[0] == "tait":
             pool.update({k: (float(entry["tait"][k]), "tait") for k in ("rho0", "p0") if k in entry["tait"]})
-    if "elastic" not in entry:       # fluids: bulk modulus at rest for linear_fluid
+    if "elastic" not in entry:  # fluids: bulk modulus at rest for linear_fluid
         if eos["model"] == "ideal_gas":
             pool["K"] = (eos["gamma"] * eos["p0"], "eos")
         elif eos["model"] == "stiffened_gas":
@@ -233,8 +252,11 @@ def table_provenance(key: str) -> dict[str, tuple[str, bool, dict]]:
     every number of the sub-table was read in its source (a derived one's arithmetic checked); False:
     at least one awaits that check. checks: the project's record of its check (data/verification.toml:
     checked, read, derived, note), {} where there is none."""
-    return {sub: (t.get("source", ""), bool(t.get("verified", False)), t.get("checks", {}))
-            for sub, t in _entry(key).items() if isinstance(t, dict)}
+    return {
+        sub: (t.get("source", ""), bool(t.get("verified", False)), t.get("checks", {}))
+        for sub, t in _entry(key).items()
+        if isinstance(t, dict)
+    }
 
 
 def default_model(key: str) -> str:
@@ -265,8 +287,10 @@ def library_material(key: str, model: str | None = None, new_key: str | None = N
     needed = model_of(model).constants if isinstance(model, str) else {}
     missing = sorted(k for k in needed if k not in pool and k not in overrides)
     if missing:
-        raise ValueError(f"materials.{name}: library key {key!r} has no {missing[0]!r} for model {model!r}: "
-                         f"give it (materials.{name}.{missing[0]} = ...) or choose another model")
+        raise ValueError(
+            f"materials.{name}: library key {key!r} has no {missing[0]!r} for model {model!r}: "
+            f"give it (materials.{name}.{missing[0]} = ...) or choose another model"
+        )
     return Material.make(name, model, **{**{k: pool[k] for k in needed if k in pool}, **overrides})
 
 

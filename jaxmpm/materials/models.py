@@ -21,6 +21,7 @@ All stress updates share one interface, update(c, mp, L, D, dt, work, q, alpha_o
   q        (N,) artificial viscosity pressure at the end of the step (Pa) or None
   alpha_of eps_ps -> alpha (E5) or None without the closure: the grid sees s - alpha p I (E8)
 """
+
 from __future__ import annotations
 
 import functools
@@ -85,28 +86,51 @@ def _total_stress(fn):
 
     def update(c, mp, L, D, dt, work, q, alpha_of):
         F, sig = fn(c, mp.F, mp.stress, L, dt)
-        if q is not None:   # artificial viscosity: nonzero only for linear_fluid here (scene.viscous_phases), whose stress is recomputed from F
+        if (
+            q is not None
+        ):  # artificial viscosity: nonzero only for linear_fluid here (scene.viscous_phases), whose stress is recomputed from F
             sig = sig - q[..., None, None] * jnp.eye(sig.shape[-1], dtype=sig.dtype)
         p = -jnp.trace(sig, axis1=-2, axis2=-1) / L.shape[-1]
-        return mp._replace(F=F, stress=sig, pressure=p, energy=elastic.total_stress_energy(mp, sig, p, D, work, alpha_of))
+        return mp._replace(
+            F=F, stress=sig, pressure=p, energy=elastic.total_stress_energy(mp, sig, p, D, work, alpha_of)
+        )
 
     return update
 
 
 MODELS = {
-    "linear_elastic": Model(_SOLID, _total_stress(elastic.linear_elastic_update), elastic.solid_wave_speed,
-                            elastic.solid_bulk_modulus, strain_energy=elastic.linear_elastic_energy),
-    "hypoelastic": Model(_SOLID, _total_stress(elastic.hypoelastic_update), elastic.solid_wave_speed,
-                         elastic.solid_bulk_modulus),
-    "linear_fluid": Model({"rho0": _POS + ("kg/m^3",), "K": _POS + ("Pa",)},
-                          _total_stress(elastic.linear_fluid_update), elastic.fluid_wave_speed, elastic.fluid_bulk_modulus),
-    "maxwell": Model({**_SOLID, "tau": _POS + ("s",)}, _total_stress(viscoelastic.maxwell_update),
-                     elastic.solid_wave_speed, elastic.solid_bulk_modulus),
-    "maxwell_brittle": Model({**_SOLID, "tau": _POS + ("s",), "sigma_t": _POS + ("Pa",), "tau_failed": _POS + ("s",)},
-                             viscoelastic.brittle_maxwell_update, elastic.solid_wave_speed, elastic.solid_bulk_modulus,
-                             can_fail=True),
-    "transversely_isotropic": Model(anisotropic.CONSTANTS, _total_stress(anisotropic.update),
-                                    anisotropic.wave_speed, anisotropic.bulk_modulus),
+    "linear_elastic": Model(
+        _SOLID,
+        _total_stress(elastic.linear_elastic_update),
+        elastic.solid_wave_speed,
+        elastic.solid_bulk_modulus,
+        strain_energy=elastic.linear_elastic_energy,
+    ),
+    "hypoelastic": Model(
+        _SOLID, _total_stress(elastic.hypoelastic_update), elastic.solid_wave_speed, elastic.solid_bulk_modulus
+    ),
+    "linear_fluid": Model(
+        {"rho0": _POS + ("kg/m^3",), "K": _POS + ("Pa",)},
+        _total_stress(elastic.linear_fluid_update),
+        elastic.fluid_wave_speed,
+        elastic.fluid_bulk_modulus,
+    ),
+    "maxwell": Model(
+        {**_SOLID, "tau": _POS + ("s",)},
+        _total_stress(viscoelastic.maxwell_update),
+        elastic.solid_wave_speed,
+        elastic.solid_bulk_modulus,
+    ),
+    "maxwell_brittle": Model(
+        {**_SOLID, "tau": _POS + ("s",), "sigma_t": _POS + ("Pa",), "tau_failed": _POS + ("s",)},
+        viscoelastic.brittle_maxwell_update,
+        elastic.solid_wave_speed,
+        elastic.solid_bulk_modulus,
+        can_fail=True,
+    ),
+    "transversely_isotropic": Model(
+        anisotropic.CONSTANTS, _total_stress(anisotropic.update), anisotropic.wave_speed, anisotropic.bulk_modulus
+    ),
 }
 
 
@@ -116,14 +140,18 @@ def split_model(name: str, where: str = "model") -> tuple[str, tuple[str, ...], 
     eos = parts[0]
     if eos not in hydro.EOS:
         allowed = " | ".join(list(MODELS) + [f"{e}[+strength][+failure]" for e in hydro.EOS])
-        raise ValueError(f"{where} = {name!r} is invalid: allowed {allowed}; strength: "
-                         f"{' | '.join(hydro.STRENGTH)}; failure: {' | '.join(hydro.FAILURE)}")
+        raise ValueError(
+            f"{where} = {name!r} is invalid: allowed {allowed}; strength: "
+            f"{' | '.join(hydro.STRENGTH)}; failure: {' | '.join(hydro.FAILURE)}"
+        )
     strength = tuple(p for p in parts[1:] if p in hydro.STRENGTH)
     failure = tuple(p for p in parts[1:] if p in hydro.FAILURE)
     unknown = [p for p in parts[1:] if p not in hydro.STRENGTH and p not in hydro.FAILURE]
     if unknown:
-        raise ValueError(f"{where} = {name!r}: part {unknown[0]!r} is unknown: allowed strength "
-                         f"{' | '.join(hydro.STRENGTH)}, failure {' | '.join(hydro.FAILURE)}")
+        raise ValueError(
+            f"{where} = {name!r}: part {unknown[0]!r} is unknown: allowed strength "
+            f"{' | '.join(hydro.STRENGTH)}, failure {' | '.join(hydro.FAILURE)}"
+        )
     if len(strength) > 1:
         raise ValueError(f"{where} = {name!r} names {len(strength)} strength models: allowed at most one")
     if len(set(failure)) != len(failure):
@@ -145,8 +173,15 @@ def model_of(name: str) -> Model:
 
 def model_names() -> str:
     """Human-readable list of the model kinds, for error messages."""
-    return (" | ".join(MODELS) + " | eos[+strength][+failure...] with eos " + " | ".join(hydro.EOS)
-            + ", strength " + " | ".join(hydro.STRENGTH) + ", failure " + " | ".join(hydro.FAILURE))
+    return (
+        " | ".join(MODELS)
+        + " | eos[+strength][+failure...] with eos "
+        + " | ".join(hydro.EOS)
+        + ", strength "
+        + " | ".join(hydro.STRENGTH)
+        + ", failure "
+        + " | ".join(hydro.FAILURE)
+    )
 
 
 def check_constant(model: str, name: str, value: float, where: str) -> None:

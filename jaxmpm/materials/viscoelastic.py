@@ -9,6 +9,7 @@ Constants: rho0 (kg/m^3), E (Pa), nu, tau (s). In 1D, E is the bar modulus (as e
 `maxwell_brittle` adds damage: tensile strength sigma_t (Pa) and the failed material's relaxation
 time tau_failed (s) (`brittle_maxwell_update`).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -36,10 +37,13 @@ def brittle_maxwell_update(c, mp, L, D, dt, work, q, alpha_of):
     damage = jnp.where(jnp.linalg.eigvalsh(intact)[..., -1] > c["sigma_t"], 1.0, mp.damage)
     p_old = -jnp.trace(mp.stress, axis1=-2, axis2=-1) / d
     dev_old = mp.stress + p_old[:, None, None] * eye
-    _, broken = hypoelastic_update(c, mp.F, dev_old * jnp.exp(-dt / c["tau_failed"]) - p_old[:, None, None] * eye, L, dt)
+    _, broken = hypoelastic_update(
+        c, mp.F, dev_old * jnp.exp(-dt / c["tau_failed"]) - p_old[:, None, None] * eye, L, dt
+    )
     p_broken = -jnp.trace(broken, axis1=-2, axis2=-1) / d
-    broken = broken + (p_broken - jnp.maximum(p_broken, 0.0))[:, None, None] * eye        # no tension
+    broken = broken + (p_broken - jnp.maximum(p_broken, 0.0))[:, None, None] * eye  # no tension
     sig = jnp.where((damage >= 1.0)[:, None, None], broken, intact)
     p = -jnp.trace(sig, axis1=-2, axis2=-1) / d
-    return mp._replace(F=F, stress=sig, pressure=p, energy=total_stress_energy(mp, sig, p, D, work, alpha_of),
-                       damage=damage)
+    return mp._replace(
+        F=F, stress=sig, pressure=p, energy=total_stress_energy(mp, sig, p, D, work, alpha_of), damage=damage
+    )

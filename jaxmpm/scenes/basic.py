@@ -1,4 +1,5 @@
 """Small built-in scenes: the default impact, verification problems, the peers' benchmark."""
+
 from __future__ import annotations
 
 import math
@@ -9,7 +10,9 @@ from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, Range, choice, integer, number  # noqa: F401  (FLAG: the builders' flags)
 
 SHAPE = choice(*SHAPES)
-PPC = Range(f"an integer in [1, {MAX_PPC}]", lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PPC)
+PPC = Range(
+    f"an integer in [1, {MAX_PPC}]", lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PPC
+)
 CFL = Range("a number in (0, 1]", lambda v: options._real(v) and 0 < v <= 1)
 
 
@@ -18,12 +21,13 @@ def _cells(n: float, resolution: float, minimum: int = 2) -> int:
     builder's resolution floor refuses it first), never silently raised to the minimum."""
     cells = int(round(n * resolution)) if resolution > 0 else 0
     if cells < minimum:
-        raise ValueError(f"resolution = {resolution!r} gives {cells} cells: allowed >= {minimum / n:.3g} "
-                         f"({minimum} cells)")
+        raise ValueError(
+            f"resolution = {resolution!r} gives {cells} cells: allowed >= {minimum / n:.3g} ({minimum} cells)"
+        )
     return cells
 
 
-IMPACT_CELLS, IMPACT_LEAST_CELLS = 64, 8        # cells across the unit square at resolution 1, at least
+IMPACT_CELLS, IMPACT_LEAST_CELLS = 64, 8  # cells across the unit square at resolution 1, at least
 
 
 def elastic_impact_ranges(**_) -> dict:
@@ -46,11 +50,19 @@ def elastic_impact(resolution: float = 1.0, shape: str = "ddmp") -> Scene:
     n = _cells(IMPACT_CELLS, resolution, IMPACT_LEAST_CELLS)
     mat = Material.make("soft_elastic", "hypoelastic", rho0=1000.0, E=1000.0, nu=0.3)
     return Scene(
-        name="elastic_impact", description="two elastic disks collide head-on (2D plane strain)",
-        grid=Grid(cells=(n, n), h=1.0 / n), shape=shape, materials=(mat,),
-        phases=(Phase("disk_a", "soft_elastic", Sphere((0.25, 0.25), 0.2), velocity=(0.1, 0.1)),
-                Phase("disk_b", "soft_elastic", Sphere((0.75, 0.75), 0.2), velocity=(-0.1, -0.1))),
-        t_end=3.0, n_out=30, cfl=0.3)
+        name="elastic_impact",
+        description="two elastic disks collide head-on (2D plane strain)",
+        grid=Grid(cells=(n, n), h=1.0 / n),
+        shape=shape,
+        materials=(mat,),
+        phases=(
+            Phase("disk_a", "soft_elastic", Sphere((0.25, 0.25), 0.2), velocity=(0.1, 0.1)),
+            Phase("disk_b", "soft_elastic", Sphere((0.75, 0.75), 0.2), velocity=(-0.1, -0.1)),
+        ),
+        t_end=3.0,
+        n_out=30,
+        cfl=0.3,
+    )
 
 
 BAR_LENGTH, BAR_SPEED = 25.0, 10.0
@@ -78,8 +90,13 @@ def _fixed_low_end(cells: int, h: float, shape: str):
 
 def vibrating_bar_ranges(**_) -> dict:
     """The allowed values of `vibrating_bar`'s options."""
-    return {"cells": integer(2), "v0": Range("a finite number (m/s)", options._real), "shape": SHAPE, "cfl": CFL,
-            "ppc": PPC}
+    return {
+        "cells": integer(2),
+        "v0": Range("a finite number (m/s)", options._real),
+        "shape": SHAPE,
+        "cfl": CFL,
+        "ppc": PPC,
+    }
 
 
 def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: float = 0.1, ppc: int = 2) -> Scene:
@@ -97,16 +114,28 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
     n_grid = cells + max(2, int(math.ceil(0.2 * cells)))
     mat = Material.make("bar", "linear_elastic", rho0=1.0, E=100.0, nu=0.0)
     grid, boundary = _fixed_low_end(n_grid, h, shape)
-    return Scene(name="vibrating_bar", description="1D fixed-free bar, first mode",
-                 grid=grid, shape=shape, materials=(mat,),
-                 phases=(Phase("bar", "bar", Box((0.0,), (L,)), velocity=(v0,), ppc=ppc),),
-                 boundary=boundary, cfl=cfl, t_end=10.0, n_out=10)
+    return Scene(
+        name="vibrating_bar",
+        description="1D fixed-free bar, first mode",
+        grid=grid,
+        shape=shape,
+        materials=(mat,),
+        phases=(Phase("bar", "bar", Box((0.0,), (L,)), velocity=(v0,), ppc=ppc),),
+        boundary=boundary,
+        cfl=cfl,
+        t_end=10.0,
+        n_out=10,
+    )
 
 
 def self_weight_column_ranges(**_) -> dict:
     """The allowed values of `self_weight_column`'s options."""
-    return {"cells": integer(2), "shape": SHAPE,
-            "load": Range("a number in (0, 1) (rho g L / E)", lambda v: options._real(v) and 0 < v < 1), "ppc": PPC}
+    return {
+        "cells": integer(2),
+        "shape": SHAPE,
+        "load": Range("a number in (0, 1) (rho g L / E)", lambda v: options._real(v) and 0 < v < 1),
+        "ppc": PPC,
+    }
 
 
 def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, ppc: int = 2) -> Scene:
@@ -126,14 +155,24 @@ def self_weight_column(cells: int = 25, shape: str = "ddmp", load: float = 0.2, 
     period = 4 * L / c
     mat = Material.make("column", "linear_elastic", rho0=rho, E=E, nu=0.0)
     grid, boundary = _fixed_low_end(cells + 4, h, shape)
-    return Scene(name="self_weight_column", description="1D column settling under self-weight",
-                 grid=grid, shape=shape, materials=(mat,),
-                 phases=(Phase("column", "column", Box((0.0,), (L,)), ppc=ppc),),
-                 boundary=boundary, gravity=(-g,), gravity_ramp=5 * period,
-                 damping=2.0 / period, cfl=0.2, t_end=20 * period, n_out=10)
+    return Scene(
+        name="self_weight_column",
+        description="1D column settling under self-weight",
+        grid=grid,
+        shape=shape,
+        materials=(mat,),
+        phases=(Phase("column", "column", Box((0.0,), (L,)), ppc=ppc),),
+        boundary=boundary,
+        gravity=(-g,),
+        gravity_ramp=5 * period,
+        damping=2.0 / period,
+        cfl=0.2,
+        t_end=20 * period,
+        n_out=10,
+    )
 
 
-MPM88_BOX = (0.15, 0.55)      # the fluid block's lower and upper corner (m, every axis)
+MPM88_BOX = (0.15, 0.55)  # the fluid block's lower and upper corner (m, every axis)
 
 
 def mpm88_particles(n_grid: int, dim: int, ppc_scale: float) -> tuple[int, int]:
@@ -147,9 +186,11 @@ def mpm88_particles(n_grid: int, dim: int, ppc_scale: float) -> tuple[int, int]:
 def mpm88_least_n_grid(dim: int = 2, ppc_scale: float = 1.0) -> int:
     """The smallest n_grid (>= 8) at which `mpm88`'s particles need at most MAX_PPC per cell per axis."""
     n = 8
-    if dim == 2:        # the particle count is fixed: start near the bound, then step to it
-        n = max(8, int(mpm88_particles(8, dim, ppc_scale)[0] ** 0.5 / ((MPM88_BOX[1] - MPM88_BOX[0]) * (MAX_PPC + 0.5))) - 1)
-    while mpm88_particles(n, dim, ppc_scale)[1] > MAX_PPC and n < 100_000:   # 3D: the same ppc at any n_grid
+    if dim == 2:  # the particle count is fixed: start near the bound, then step to it
+        n = max(
+            8, int(mpm88_particles(8, dim, ppc_scale)[0] ** 0.5 / ((MPM88_BOX[1] - MPM88_BOX[0]) * (MAX_PPC + 0.5))) - 1
+        )
+    while mpm88_particles(n, dim, ppc_scale)[1] > MAX_PPC and n < 100_000:  # 3D: the same ppc at any n_grid
         n += 1
     return n
 
@@ -167,9 +208,15 @@ def mpm88_ranges(dim: int = 2, ppc_scale: float = 1.0, **_) -> dict:
     least = mpm88_least_n_grid(dim, ppc_scale) if ok else 8
     note = f"at dim = {dim}, ppc_scale = {ppc_scale:g}: at most {MAX_PPC} particles per cell per axis" if ok else ""
     cap = _mpm88_scale_cap(dim)
-    scale = number(0.0) if cap == math.inf else Range(
-        f"a finite number in (0, {cap:.4g}) (at dim = 3 the particles per cell do not depend on n_grid: at most "
-        f"{MAX_PPC} per axis)", lambda v: options._real(v) and 0 < v < cap)
+    scale = (
+        number(0.0)
+        if cap == math.inf
+        else Range(
+            f"a finite number in (0, {cap:.4g}) (at dim = 3 the particles per cell do not depend on n_grid: at most "
+            f"{MAX_PPC} per axis)",
+            lambda v: options._real(v) and 0 < v < cap,
+        )
+    )
     return {"n_grid": integer(least, note), "dim": choice(2, 3), "ppc_scale": scale}
 
 
@@ -185,8 +232,17 @@ def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     n_particles, ppc = mpm88_particles(n_grid, dim, ppc_scale)
     mat = Material.make("mpm88_fluid", "linear_fluid", rho0=1.0, K=400.0)
     walls = tuple((f"{a}_{s}", "slip") for a in "xyz"[:dim] for s in ("lo", "hi"))
-    return Scene(name="mpm88", description="peers' benchmark: weakly compressible fluid, APIC",
-                 grid=Grid(cells=(n_grid,) * dim, h=1.0 / n_grid), shape="bspline2", transfer="apic",
-                 materials=(mat,), phases=(Phase("fluid", "mpm88_fluid", Box((MPM88_BOX[0],) * dim, (MPM88_BOX[1],) * dim), ppc=ppc),),
-                 gravity=(0.0, -9.8) if dim == 2 else (0.0, -9.8, 0.0), boundary=Boundary(faces=walls, layers=3),
-                 cfl=0.5, t_end=0.1, n_out=10)
+    return Scene(
+        name="mpm88",
+        description="peers' benchmark: weakly compressible fluid, APIC",
+        grid=Grid(cells=(n_grid,) * dim, h=1.0 / n_grid),
+        shape="bspline2",
+        transfer="apic",
+        materials=(mat,),
+        phases=(Phase("fluid", "mpm88_fluid", Box((MPM88_BOX[0],) * dim, (MPM88_BOX[1],) * dim), ppc=ppc),),
+        gravity=(0.0, -9.8) if dim == 2 else (0.0, -9.8, 0.0),
+        boundary=Boundary(faces=walls, layers=3),
+        cfl=0.5,
+        t_end=0.1,
+        n_out=10,
+    )

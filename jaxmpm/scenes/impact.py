@@ -1,4 +1,5 @@
 """Hypervelocity impact scenes of the seed (2D axisymmetric)."""
+
 from __future__ import annotations
 
 from jaxmpm.materials import library_material
@@ -7,12 +8,12 @@ from jaxmpm.scenes import options
 from jaxmpm.scenes.basic import _cells
 from jaxmpm.scenes.options import FLAG, choice, number, optional
 
-SPHERE_DIAMETER = 9.53e-3       # m (Piekutowski 1993)
-PLATE_THICKNESS = 2.21e-3       # m, t / D = 0.232
-IMPACT_SPEED = 6710.0           # m/s
+SPHERE_DIAMETER = 9.53e-3  # m (Piekutowski 1993)
+PLATE_THICKNESS = 2.21e-3  # m, t / D = 0.232
+IMPACT_SPEED = 6710.0  # m/s
 
 
-DEBRIS_CELL = 0.4e-3            # m, the cell at resolution 1
+DEBRIS_CELL = 0.4e-3  # m, the cell at resolution 1
 POSITIVE = number(0.0)
 
 
@@ -21,20 +22,38 @@ def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_
     given: 4 cells across the plate; plate_radius's at the sphere_diameter given)."""
     t = plate_thickness if POSITIVE.contains(plate_thickness) else PLATE_THICKNESS
     d = sphere_diameter if POSITIVE.contains(sphere_diameter) else SPHERE_DIAMETER
-    return {"fields": choice(1, 2), "c_h": POSITIVE, "drag": POSITIVE, "t_end": number(0.0, unit="s"),
-            "plate_radius": number(d / 2, strict=False, unit="m", note="the sphere's radius"),
-            "speed": number(0.0, unit="m/s", note="the impact speed toward the plate"),
-            "plate_thickness": number(0.0, unit="m"), "sphere_diameter": number(0.0, unit="m"),
-            "gap": optional(number(0.0, strict=False, unit="m", note="from the sphere to the plate's top face"),
-                            "one cell"),
-            "fragmentation": choice("failed", "plastic", "tensile"), "drag_heating": FLAG,
-            "resolution": options.resolution(options.cells_floor(t / DEBRIS_CELL, 4), 4, "the plate")}
+    return {
+        "fields": choice(1, 2),
+        "c_h": POSITIVE,
+        "drag": POSITIVE,
+        "t_end": number(0.0, unit="s"),
+        "plate_radius": number(d / 2, strict=False, unit="m", note="the sphere's radius"),
+        "speed": number(0.0, unit="m/s", note="the impact speed toward the plate"),
+        "plate_thickness": number(0.0, unit="m"),
+        "sphere_diameter": number(0.0, unit="m"),
+        "gap": optional(
+            number(0.0, strict=False, unit="m", note="from the sphere to the plate's top face"), "one cell"
+        ),
+        "fragmentation": choice("failed", "plastic", "tensile"),
+        "drag_heating": FLAG,
+        "resolution": options.resolution(options.cells_floor(t / DEBRIS_CELL, 4), 4, "the plate"),
+    }
 
 
-def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, drag: float = 1.0,
-                 t_end: float = 6e-6, plate_radius: float = 15e-3, speed: float = IMPACT_SPEED,
-                 plate_thickness: float = PLATE_THICKNESS, sphere_diameter: float = SPHERE_DIAMETER,
-                 gap: float | None = None, fragmentation: str = "failed", drag_heating: bool = False) -> Scene:
+def debris_cloud(
+    resolution: float = 1.0,
+    fields: int = 1,
+    c_h: float = 0.15,
+    drag: float = 1.0,
+    t_end: float = 6e-6,
+    plate_radius: float = 15e-3,
+    speed: float = IMPACT_SPEED,
+    plate_thickness: float = PLATE_THICKNESS,
+    sphere_diameter: float = SPHERE_DIAMETER,
+    gap: float | None = None,
+    fragmentation: str = "failed",
+    drag_heating: bool = False,
+) -> Scene:
     """Debris cloud: an Al-2024 sphere hits a thin Al-2024 plate at 6.71 km/s (Piekutowski, Int. J.
     Impact Eng. 14 (1993) 573; the seed's "continuous to disperse flow transition" and C_h table;
     the measured feature velocities are in jaxmpm's calibration data).
@@ -78,13 +97,29 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     above resolution 2 single projectile particles on the axis move backward and point 4 does not
     converge (docs/closure.md has every sweep).
     """
-    options.check("debris_cloud", debris_cloud_ranges(plate_thickness, sphere_diameter),
-                  dict(resolution=resolution, fields=fields, c_h=c_h, drag=drag, t_end=t_end, plate_radius=plate_radius,
-                       speed=speed, plate_thickness=plate_thickness, sphere_diameter=sphere_diameter, gap=gap,
-                       fragmentation=fragmentation, drag_heating=drag_heating))
+    options.check(
+        "debris_cloud",
+        debris_cloud_ranges(plate_thickness, sphere_diameter),
+        dict(
+            resolution=resolution,
+            fields=fields,
+            c_h=c_h,
+            drag=drag,
+            t_end=t_end,
+            plate_radius=plate_radius,
+            speed=speed,
+            plate_thickness=plate_thickness,
+            sphere_diameter=sphere_diameter,
+            gap=gap,
+            fragmentation=fragmentation,
+            drag_heating=drag_heating,
+        ),
+    )
     if drag_heating and fields != 2:
-        raise ValueError(f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 "
-                         "(the heat is the drag's work between the projectile's and the plate's fields)")
+        raise ValueError(
+            f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 "
+            "(the heat is the drag's work between the projectile's and the plate's fields)"
+        )
     h = DEBRIS_CELL / resolution
     gap = h if gap is None else gap
     R = sphere_diameter / 2
@@ -92,19 +127,34 @@ def debris_cloud(resolution: float = 1.0, fields: int = 1, c_h: float = 0.15, dr
     z_hi = 2 * R + gap + sphere_diameter
     n_r = _cells((plate_radius + 3e-3) / DEBRIS_CELL, resolution, 4)
     n_z = _cells((z_hi - z_lo) / DEBRIS_CELL, resolution, 4)
-    al = (library_material("al2024", model="mie_gruneisen+johnson_cook_thermal") if fragmentation == "tensile"
-          else library_material("al2024"))
+    al = (
+        library_material("al2024", model="mie_gruneisen+johnson_cook_thermal")
+        if fragmentation == "tensile"
+        else library_material("al2024")
+    )
     return Scene(
-        name="debris_cloud", description="Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric)",
-        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, z_lo)), axisymmetric=True, materials=(al,),
+        name="debris_cloud",
+        description="Al-2024 sphere on an Al-2024 plate at 6.71 km/s (2D axisymmetric)",
+        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, z_lo)),
+        axisymmetric=True,
+        materials=(al,),
         boundary=Boundary(faces=(("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))),
-        phases=(Phase("projectile", "al2024", Sphere((0.0, R + gap), R), velocity=(0.0, -speed), field=0),
-                Phase("plate", "al2024", Box((0.0, -plate_thickness), (plate_radius, 0.0)), field=fields - 1)),
-        drag=drag if fields == 2 else None, drag_heating=drag_heating, c_h=c_h, fragmentation=fragmentation,
-        artificial_viscosity=(0.5, 2.0), t_end=t_end, n_out=12, cfl=0.3)
+        phases=(
+            Phase("projectile", "al2024", Sphere((0.0, R + gap), R), velocity=(0.0, -speed), field=0),
+            Phase("plate", "al2024", Box((0.0, -plate_thickness), (plate_radius, 0.0)), field=fields - 1),
+        ),
+        drag=drag if fields == 2 else None,
+        drag_heating=drag_heating,
+        c_h=c_h,
+        fragmentation=fragmentation,
+        artificial_viscosity=(0.5, 2.0),
+        t_end=t_end,
+        n_out=12,
+        cfl=0.3,
+    )
 
 
-TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED = 25.4e-3, 7.62e-3, 190.0     # m, m, m/s
+TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED = 25.4e-3, 7.62e-3, 190.0  # m, m, m/s
 # the Johnson-Cook steel rod of the code-verification case: L0, D0 in m, impact speed in m/s
 TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED = 32.4e-3, 6.4e-3, 287.0
 # the bilinear J2 copper bar of Wilkins & Guinan's benchmark: L0, D0 in m, impact speed in m/s
@@ -122,9 +172,22 @@ def taylor_steel_material():
     from jaxmpm.materials import Material
 
     E, nu = 206.9e9, 0.3
-    return Material.make("steel_42crmo4", "linear+johnson_cook_thermal_plastic_rate", rho0=7830.0,
-                         K=E / (3 * (1 - 2 * nu)), G=E / (2 * (1 + nu)), A=806e6, B=614e6, n=0.168, C=0.0089,
-                         epsdot0=1.0, m=1.1, T_room=293.15, T_melt=1813.15, cp=460.0)
+    return Material.make(
+        "steel_42crmo4",
+        "linear+johnson_cook_thermal_plastic_rate",
+        rho0=7830.0,
+        K=E / (3 * (1 - 2 * nu)),
+        G=E / (2 * (1 + nu)),
+        A=806e6,
+        B=614e6,
+        n=0.168,
+        C=0.0089,
+        epsdot0=1.0,
+        m=1.1,
+        T_room=293.15,
+        T_melt=1813.15,
+        cp=460.0,
+    )
 
 
 def taylor_bilinear_copper_material():
@@ -137,29 +200,53 @@ def taylor_bilinear_copper_material():
     from jaxmpm.materials import Material
 
     E, nu = 117e9, 0.35
-    return Material.make("copper_bilinear", "linear+johnson_cook", rho0=8930.0, K=E / (3 * (1 - 2 * nu)),
-                         G=E / (2 * (1 + nu)), A=400e6, B=100e6, n=1.0, C=0.0, epsdot0=1.0)
+    return Material.make(
+        "copper_bilinear",
+        "linear+johnson_cook",
+        rho0=8930.0,
+        K=E / (3 * (1 - 2 * nu)),
+        G=E / (2 * (1 + nu)),
+        A=400e6,
+        B=100e6,
+        n=1.0,
+        C=0.0,
+        epsdot0=1.0,
+    )
 
 
-TAYLOR_CASES = {   # material -> (L0 in m, D0 in m, speed in m/s, material builder; None: the library's)
+TAYLOR_CASES = {  # material -> (L0 in m, D0 in m, speed in m/s, material builder; None: the library's)
     "copper_ofhc": (TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED, None),
     "steel_42crmo4": (TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED, taylor_steel_material),
-    "copper_bilinear": (TAYLOR_BILINEAR_LENGTH, TAYLOR_BILINEAR_DIAMETER, TAYLOR_BILINEAR_SPEED,
-                        taylor_bilinear_copper_material),
+    "copper_bilinear": (
+        TAYLOR_BILINEAR_LENGTH,
+        TAYLOR_BILINEAR_DIAMETER,
+        TAYLOR_BILINEAR_SPEED,
+        taylor_bilinear_copper_material,
+    ),
 }
 
 
 def taylor_bar_ranges(**_) -> dict:
     """The allowed values of `taylor_bar`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
     case = "the chosen material's case"
-    return {"speed": optional(number(0.0, unit="m/s"), case), "length": optional(number(0.0, unit="m"), case),
-            "diameter": optional(number(0.0, unit="m"), case), "t_end": number(0.0, unit="s"),
-            "material": choice(*TAYLOR_CASES),
-            "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius")}
+    return {
+        "speed": optional(number(0.0, unit="m/s"), case),
+        "length": optional(number(0.0, unit="m"), case),
+        "diameter": optional(number(0.0, unit="m"), case),
+        "t_end": number(0.0, unit="s"),
+        "material": choice(*TAYLOR_CASES),
+        "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius"),
+    }
 
 
-def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: float | None = None,
-               diameter: float | None = None, t_end: float = 80e-6, material: str = "copper_ofhc") -> Scene:
+def taylor_bar(
+    resolution: float = 1.0,
+    speed: float | None = None,
+    length: float | None = None,
+    diameter: float | None = None,
+    t_end: float = 80e-6,
+    material: str = "copper_ofhc",
+) -> Scene:
     """Taylor impact: a metal rod hits a rigid wall end-on. `material` "copper_ofhc" (default): the
     cylinder-impact test of Johnson & Cook 1983 for their copper constants (L0 = 25.4 mm,
     D0 = 7.62 mm, 190 m/s), compared with the experiment. "steel_42crmo4": a code-verification
@@ -209,8 +296,11 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
     With the same model kinds jaxmpm reproduces the finite element codes, so the copper rod's 6%
     points to the Johnson-Cook copper constants against the experiment rather than to the method.
     """
-    options.check("taylor_bar", taylor_bar_ranges(), dict(resolution=resolution, speed=speed, length=length,
-                                                         diameter=diameter, t_end=t_end, material=material))
+    options.check(
+        "taylor_bar",
+        taylor_bar_ranges(),
+        dict(resolution=resolution, speed=speed, length=length, diameter=diameter, t_end=t_end, material=material),
+    )
     L0, D0, v0, build = TAYLOR_CASES[material]
     speed = v0 if speed is None else speed
     length = L0 if length is None else length
@@ -219,13 +309,22 @@ def taylor_bar(resolution: float = 1.0, speed: float | None = None, length: floa
     n_r = max(4, int(round(1.4 * diameter / h)))
     n_z = int(round(length / h)) + 3
     mat = library_material("copper_ofhc", model="mie_gruneisen+johnson_cook_thermal") if build is None else build()
-    what = {"copper_ofhc": "OFHC copper", "steel_42crmo4": "42CrMo4 steel", "copper_bilinear": "bilinear copper"}[material]
+    what = {"copper_ofhc": "OFHC copper", "steel_42crmo4": "42CrMo4 steel", "copper_bilinear": "bilinear copper"}[
+        material
+    ]
     return Scene(
-        name="taylor_bar", description=f"{what} rod on a rigid wall at {speed:g} m/s (2D axisymmetric)",
-        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, 0.0)), axisymmetric=True, materials=(mat,),
+        name="taylor_bar",
+        description=f"{what} rod on a rigid wall at {speed:g} m/s (2D axisymmetric)",
+        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, 0.0)),
+        axisymmetric=True,
+        materials=(mat,),
         boundary=Boundary(faces=(("y_lo", "slip"),)),
         phases=(Phase("rod", material, Box((0.0, 0.0), (diameter / 2, length)), velocity=(0.0, -speed)),),
-        artificial_viscosity=(0.5, 2.0), t_end=t_end, n_out=16, cfl=0.3)
+        artificial_viscosity=(0.5, 2.0),
+        t_end=t_end,
+        n_out=16,
+        cfl=0.3,
+    )
 
 
 def taylor_measures(scene, state):
@@ -234,12 +333,13 @@ def taylor_measures(scene, state):
     extents; the material's surface lies half a particle spacing h / (2 ppc) beyond each free face,
     and the figures quoted for the scene (`taylor_bar`) add it: L + h / (2 ppc), D + h / ppc."""
     import numpy as np
+
     x = np.asarray(state.x)
     near = x[:, 1] < scene.grid.h
     return float(x[:, 1].max()), 2.0 * float(x[near, 0].max())
 
 
-BRITTLE_LENGTH, BRITTLE_DIAMETER, BRITTLE_SPEED = 30e-3, 10e-3, 20.0     # m, m, m/s
+BRITTLE_LENGTH, BRITTLE_DIAMETER, BRITTLE_SPEED = 30e-3, 10e-3, 20.0  # m, m, m/s
 
 
 def brittle_rod_material():
@@ -249,18 +349,29 @@ def brittle_rod_material():
     intact over the test's microseconds) and tau_failed = 1 us (failed material flows as rubble)."""
     from jaxmpm.materials import Material
 
-    return Material.make("brittle_glass", "maxwell_brittle", rho0=2500.0, E=70e9, nu=0.22, tau=1.0,
-                         sigma_t=100e6, tau_failed=1e-6)
+    return Material.make(
+        "brittle_glass", "maxwell_brittle", rho0=2500.0, E=70e9, nu=0.22, tau=1.0, sigma_t=100e6, tau_failed=1e-6
+    )
 
 
 def taylor_brittle_ranges(**_) -> dict:
     """The allowed values of `taylor_brittle`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
-    return {"speed": number(0.0, unit="m/s"), "length": number(0.0, unit="m"), "diameter": number(0.0, unit="m"),
-            "t_end": number(0.0, unit="s"), "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius")}
+    return {
+        "speed": number(0.0, unit="m/s"),
+        "length": number(0.0, unit="m"),
+        "diameter": number(0.0, unit="m"),
+        "t_end": number(0.0, unit="s"),
+        "resolution": options.resolution(options.cells_floor(10, 3), 3, "the rod's radius"),
+    }
 
 
-def taylor_brittle(resolution: float = 1.0, speed: float = BRITTLE_SPEED, length: float = BRITTLE_LENGTH,
-                   diameter: float = BRITTLE_DIAMETER, t_end: float = 30e-6) -> Scene:
+def taylor_brittle(
+    resolution: float = 1.0,
+    speed: float = BRITTLE_SPEED,
+    length: float = BRITTLE_LENGTH,
+    diameter: float = BRITTLE_DIAMETER,
+    t_end: float = 30e-6,
+) -> Scene:
     """Brittle Taylor impact: a glass-like rod hits a rigid wall end-on and cracks (the seed's
     "Taylor impact of brittle material" with its Maxwell model, d sigma/dt - W sigma + sigma W =
     -sigma / tau + lambda tr(D) I + 2 G D, the relaxation time depending on the damage).
@@ -281,15 +392,24 @@ def taylor_brittle(resolution: float = 1.0, speed: float = BRITTLE_SPEED, length
     54% of the rod failed at 30 us (63% at resolution 0.5); kinetic + internal energy conserved to
     0.03%. At 50 m/s and above the failure front follows the compression wave and the whole rod fails within 6 us.
     """
-    options.check("taylor_brittle", taylor_brittle_ranges(), dict(resolution=resolution, speed=speed, length=length,
-                                                                 diameter=diameter, t_end=t_end))
+    options.check(
+        "taylor_brittle",
+        taylor_brittle_ranges(),
+        dict(resolution=resolution, speed=speed, length=length, diameter=diameter, t_end=t_end),
+    )
     h = diameter / 20 / resolution
     n_r = max(4, int(round(2 * diameter / h)))
     n_z = int(round(length / h)) + 3
     glass = brittle_rod_material()
     return Scene(
-        name="taylor_brittle", description="brittle (Maxwell) rod on a rigid wall at 20 m/s (2D axisymmetric)",
-        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, 0.0)), axisymmetric=True, materials=(glass,),
+        name="taylor_brittle",
+        description="brittle (Maxwell) rod on a rigid wall at 20 m/s (2D axisymmetric)",
+        grid=Grid(cells=(n_r, n_z), h=h, origin=(0.0, 0.0)),
+        axisymmetric=True,
+        materials=(glass,),
         boundary=Boundary(faces=(("y_lo", "slip"),)),
         phases=(Phase("rod", glass.key, Box((0.0, 0.0), (diameter / 2, length)), velocity=(0.0, -speed)),),
-        t_end=t_end, n_out=10, cfl=0.3)
+        t_end=t_end,
+        n_out=10,
+        cfl=0.3,
+    )

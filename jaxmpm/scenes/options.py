@@ -1,6 +1,7 @@
 """The allowed values of the built-in scenes' builder options: one table per builder (a function of
 the options given, since a floor can depend on another option), used both by the builder's checks
 (`check`) and by `jaxmpm scenes --verbose` / `jaxmpm scenes NAME` (`describe`)."""
+
 from __future__ import annotations
 
 import math
@@ -11,6 +12,7 @@ from typing import Any, Callable
 @dataclass(frozen=True)
 class Range:
     """An option's allowed values: `words` says them, `contains(value)` tests one."""
+
     words: str
     contains: Callable[[Any], bool]
 
@@ -33,8 +35,10 @@ def optional(r: Range, default_words: str) -> Range:
 
 def integer(least: int, note: str = "") -> Range:
     """An integer >= least."""
-    return Range(f"an integer >= {least}" + (f" ({note})" if note else ""),
-                 lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= least)
+    return Range(
+        f"an integer >= {least}" + (f" ({note})" if note else ""),
+        lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= least,
+    )
 
 
 def choice(*values) -> Range:
@@ -77,5 +81,4 @@ def describe(name: str) -> list[tuple[str, Any, str]]:
     options = builder_options(b.build)
     defaults = {k: p.default for k, p in options.items() if p.default is not inspect.Parameter.empty}
     ranges = b.ranges(**defaults) if b.ranges is not None else {}
-    return [(k, defaults.get(k), ranges[k].words if k in ranges else "see the builder's docstring")
-            for k in options]
+    return [(k, defaults.get(k), ranges[k].words if k in ranges else "see the builder's docstring") for k in options]

@@ -1,4 +1,5 @@
 """Long-rod penetration (2D axisymmetric) and the Alekseevskii-Tate model it is checked against."""
+
 from __future__ import annotations
 
 import math
@@ -10,7 +11,7 @@ from jaxmpm.scene import Boundary, Box, Difference, Grid, Phase, Scene
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, choice, number, optional
 
-ROD_DIAMETER, ROD_LENGTH, ROD_SPEED = 7.5e-3, 75e-3, 2000.0     # m, m (L/D = 10), m/s
+ROD_DIAMETER, ROD_LENGTH, ROD_SPEED = 7.5e-3, 75e-3, 2000.0  # m, m (L/D = 10), m/s
 REFERENCE_PLASTIC_STRAIN = 0.5
 
 
@@ -56,16 +57,32 @@ def rod_penetration_ranges(diameter=ROD_DIAMETER, **_) -> dict:
     D / 10 / resolution each; the target at least the rod's diameter given)."""
     d = diameter if number(0.0).contains(diameter) else ROD_DIAMETER
     least = number(d, strict=False, unit="m", note="the rod's diameter")
-    return {"speed": number(0.0, unit="m/s"), "length": number(0.0, unit="m"), "diameter": number(0.0, unit="m"),
-            "fields": choice(1, 2, 3), "air": FLAG, "drag": number(0.0),
-            "target_radius": optional(least, "4 diameters"), "target_depth": optional(least, "speed t_end + 2 diameters"),
-            "t_end": number(0.0, unit="s"), "resolution": options.resolution(options.cells_floor(5, 2), 2, "the rod's radius")}
+    return {
+        "speed": number(0.0, unit="m/s"),
+        "length": number(0.0, unit="m"),
+        "diameter": number(0.0, unit="m"),
+        "fields": choice(1, 2, 3),
+        "air": FLAG,
+        "drag": number(0.0),
+        "target_radius": optional(least, "4 diameters"),
+        "target_depth": optional(least, "speed t_end + 2 diameters"),
+        "t_end": number(0.0, unit="s"),
+        "resolution": options.resolution(options.cells_floor(5, 2), 2, "the rod's radius"),
+    }
 
 
-def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: float = ROD_LENGTH,
-                    diameter: float = ROD_DIAMETER, fields: int = 1, air: bool = False, drag: float = 1.0,
-                    target_radius: float | None = None, target_depth: float | None = None,
-                    t_end: float = 45e-6) -> Scene:
+def rod_penetration(
+    resolution: float = 1.0,
+    speed: float = ROD_SPEED,
+    length: float = ROD_LENGTH,
+    diameter: float = ROD_DIAMETER,
+    fields: int = 1,
+    air: bool = False,
+    drag: float = 1.0,
+    target_radius: float | None = None,
+    target_depth: float | None = None,
+    t_end: float = 45e-6,
+) -> Scene:
     """Long-rod penetration: a tungsten heavy-alloy rod (L/D = 10, D = 7.5 mm) hits semi-infinite
     steel end-on (the test series of Anderson, Hohler, Walker & Stilp, Int. J. Impact Eng. 16 (1995)
     1, at 1.5 to 3 km/s; the seed's multi-velocity impact).
@@ -101,14 +118,29 @@ def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: f
     the stress of the loaded metal drove the air beside it to tens of km/s within 2 us). Air in the
     solids' field (one field) is refused: it reached 25 km/s within 4 us and the run failed at 43 us.
     """
-    options.check("rod_penetration", rod_penetration_ranges(diameter),
-                  dict(resolution=resolution, speed=speed, length=length, diameter=diameter, fields=fields, air=air,
-                       drag=drag, target_radius=target_radius, target_depth=target_depth, t_end=t_end))
+    options.check(
+        "rod_penetration",
+        rod_penetration_ranges(diameter),
+        dict(
+            resolution=resolution,
+            speed=speed,
+            length=length,
+            diameter=diameter,
+            fields=fields,
+            air=air,
+            drag=drag,
+            target_radius=target_radius,
+            target_depth=target_depth,
+            t_end=t_end,
+        ),
+    )
     if fields == 3 and not air:
         raise ValueError("rod_penetration: fields = 3 puts air in its own field: allowed only with air = true")
     if fields == 1 and air:
-        raise ValueError("rod_penetration: air in the solids' velocity field is unstable (the air beside the impact "
-                         "reached 25 km/s within 4 us and the run failed at 43 us): allowed fields = 2 | 3 with air")
+        raise ValueError(
+            "rod_penetration: air in the solids' velocity field is unstable (the air beside the impact "
+            "reached 25 km/s within 4 us and the run failed at 43 us): allowed fields = 2 | 3 with air"
+        )
     h = diameter / 10 / resolution
     target_radius = 4 * diameter if target_radius is None else target_radius
     target_depth = speed * t_end + 2 * diameter if target_depth is None else target_depth
@@ -122,16 +154,27 @@ def rod_penetration(resolution: float = 1.0, speed: float = ROD_SPEED, length: f
     # the air shares no common pressure with the solids (drag only): with it, the stress of the loaded
     # metal drove the air beside it to tens of km/s within 2 us
     coupled = (True if not air else False) if fields == 2 else (0, 1) if fields == 3 else True
-    phases = [Phase("rod", "tungsten_wha", rod_box, velocity=(0.0, -speed), field=rod_field),
-              Phase("target", "steel_4340", Box((0.0, -n_below * h), (n_r * h, 0.0)), field=target_field)]
+    phases = [
+        Phase("rod", "tungsten_wha", rod_box, velocity=(0.0, -speed), field=rod_field),
+        Phase("target", "steel_4340", Box((0.0, -n_below * h), (n_r * h, 0.0)), field=target_field),
+    ]
     if air:
         phases.append(Phase("air", "air", Difference(Box((0.0, 0.0), (n_r * h, z_top)), (rod_box,)), field=air_field))
     return Scene(
-        name="rod_penetration", description="tungsten-alloy long rod into semi-infinite steel (2D axisymmetric)",
-        grid=grid, axisymmetric=True, materials=tuple(library_material(k) for k in ("tungsten_wha", "steel_4340")),
-        boundary=Boundary(faces=(("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))), phases=tuple(phases),
-        drag=drag if fields > 1 else None, interface_forces=coupled, artificial_viscosity=(0.5, 2.0), t_end=t_end,
-        n_out=15, cfl=0.3)
+        name="rod_penetration",
+        description="tungsten-alloy long rod into semi-infinite steel (2D axisymmetric)",
+        grid=grid,
+        axisymmetric=True,
+        materials=tuple(library_material(k) for k in ("tungsten_wha", "steel_4340")),
+        boundary=Boundary(faces=(("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))),
+        phases=tuple(phases),
+        drag=drag if fields > 1 else None,
+        interface_forces=coupled,
+        artificial_viscosity=(0.5, 2.0),
+        t_end=t_end,
+        n_out=15,
+        cfl=0.3,
+    )
 
 
 def penetration_measures(scene, state) -> dict:
@@ -175,8 +218,9 @@ def steady_penetration_rate(scene, history, window=(0.3, 1.0)) -> tuple[float, f
     t = m["t"]
     keep = (t >= window[0] * t[-1]) & (t <= window[1] * t[-1])
     if keep.sum() < 3:
-        raise ValueError(f"steady_penetration_rate: {int(keep.sum())} outputs in the window {window}: allowed >= 3 "
-                         "(raise n_out)")
+        raise ValueError(
+            f"steady_penetration_rate: {int(keep.sum())} outputs in the window {window}: allowed >= 3 (raise n_out)"
+        )
     u = float(np.polyfit(t[keep], m["depth"][keep], 1)[0])
     rho_p, rho_t = (library_constants(k)["rho0"] for k in ("tungsten_wha", "steel_4340"))
     u_tate = float(np.mean(tate_penetration_speed(m["tail_speed"][keep], rho_p, rho_t, *tate_strengths())))
@@ -192,18 +236,34 @@ def laminate_material():
     nu12 / E1 = nu21 / E2 with nu21 = 0.3), transverse shear G12 = 4 GPa."""
     from jaxmpm.materials import Material
 
-    return Material.make("cfrp_laminate", "transversely_isotropic", rho0=1600.0, E1=10e9, E2=50e9, nu12=0.06,
-                         nu23=0.3, G12=4e9, fibre_theta=math.pi / 2, fibre_phi=0.0)
+    return Material.make(
+        "cfrp_laminate",
+        "transversely_isotropic",
+        rho0=1600.0,
+        E1=10e9,
+        E2=50e9,
+        nu12=0.06,
+        nu23=0.3,
+        G12=4e9,
+        fibre_theta=math.pi / 2,
+        fibre_phi=0.0,
+    )
 
 
 def sandwich_target_ranges(**_) -> dict:
     """The allowed values of `sandwich_target`'s options (3 cells across a 3 mm face sheet, 0.5 mm / resolution each)."""
-    return {"speed": number(0.0, unit="m/s"), "fields": choice(1, 2, 3), "drag": number(0.0), "t_end": number(0.0, unit="s"),
-            "resolution": options.resolution(options.cells_floor(6, 3), 3, "a face sheet")}
+    return {
+        "speed": number(0.0, unit="m/s"),
+        "fields": choice(1, 2, 3),
+        "drag": number(0.0),
+        "t_end": number(0.0, unit="s"),
+        "resolution": options.resolution(options.cells_floor(6, 3), 3, "a face sheet"),
+    }
 
 
-def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int = 1, drag: float = 1.0,
-                    t_end: float = 20e-6) -> Scene:
+def sandwich_target(
+    resolution: float = 1.0, speed: float = 800.0, fields: int = 1, drag: float = 1.0, t_end: float = 20e-6
+) -> Scene:
     """A tungsten projectile into a steel / composite / steel sandwich plate (the seed's last
     example, with its anisotropic elastic model for the composite layer).
 
@@ -231,8 +291,11 @@ def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int =
     version gained energy fourfold in 20 us (the interface forces' work was not stored) and the
     two-field one lost 44%.
     """
-    options.check("sandwich_target", sandwich_target_ranges(),
-                  dict(resolution=resolution, speed=speed, fields=fields, drag=drag, t_end=t_end))
+    options.check(
+        "sandwich_target",
+        sandwich_target_ranges(),
+        dict(resolution=resolution, speed=speed, fields=fields, drag=drag, t_end=t_end),
+    )
     h = 0.5e-3 / resolution
     radius, sheet, core, rod_d, rod_l = 25e-3, 3e-3, 6e-3, 6e-3, 18e-3
     below = 2 * sheet + core + speed * t_end * 0.5 + 4e-3
@@ -243,16 +306,27 @@ def sandwich_target(resolution: float = 1.0, speed: float = 800.0, fields: int =
     f_proj, f_steel, f_core = {1: (0, 0, 0), 2: (0, 1, 1), 3: (0, 1, 2)}[fields]
     lam = laminate_material()
     core_box = Box((0.0, -sheet - core), (radius, -sheet))
-    phases = (Phase("projectile", "tungsten_wha", Box((0.0, h), (rod_d / 2, h + rod_l)), velocity=(0.0, -speed),
-                    field=f_proj),
-              Phase("core", lam.key, core_box, field=f_core),
-              Phase("sheets", "steel_4340", Difference(Box((0.0, -2 * sheet - core), (radius, 0.0)), (core_box,)),
-                    field=f_steel))
+    phases = (
+        Phase(
+            "projectile", "tungsten_wha", Box((0.0, h), (rod_d / 2, h + rod_l)), velocity=(0.0, -speed), field=f_proj
+        ),
+        Phase("core", lam.key, core_box, field=f_core),
+        Phase(
+            "sheets", "steel_4340", Difference(Box((0.0, -2 * sheet - core), (radius, 0.0)), (core_box,)), field=f_steel
+        ),
+    )
     return Scene(
-        name="sandwich_target", description="tungsten rod into a steel / CFRP / steel sandwich (2D axisymmetric)",
-        grid=grid, axisymmetric=True,
+        name="sandwich_target",
+        description="tungsten rod into a steel / CFRP / steel sandwich (2D axisymmetric)",
+        grid=grid,
+        axisymmetric=True,
         materials=(library_material("tungsten_wha"), library_material("steel_4340"), lam),
-        phases=phases, drag=drag if fields > 1 else None, t_end=t_end, n_out=10, cfl=0.3)
+        phases=phases,
+        drag=drag if fields > 1 else None,
+        t_end=t_end,
+        n_out=10,
+        cfl=0.3,
+    )
 
 
 FLUIDS = ("air", "water")
@@ -261,13 +335,24 @@ FLUIDS = ("air", "water")
 def projectile_concrete_ranges(**_) -> dict:
     """The allowed values of `projectile_concrete`'s options (3 cells across the projectile's 5 mm
     radius, 1 mm / resolution each)."""
-    return {"fluid": choice(*FLUIDS), "speed": number(0.0, unit="m/s"), "drag": number(0.0),
-            "standoff": number(0.0, unit="m"), "t_end": number(0.0, unit="s"),
-            "resolution": options.resolution(options.cells_floor(5, 3), 3, "the projectile's radius")}
+    return {
+        "fluid": choice(*FLUIDS),
+        "speed": number(0.0, unit="m/s"),
+        "drag": number(0.0),
+        "standoff": number(0.0, unit="m"),
+        "t_end": number(0.0, unit="s"),
+        "resolution": options.resolution(options.cells_floor(5, 3), 3, "the projectile's radius"),
+    }
 
 
-def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: float = 500.0, drag: float = 1.0,
-                        standoff: float = 10e-3, t_end: float = 60e-6) -> Scene:
+def projectile_concrete(
+    resolution: float = 1.0,
+    fluid: str = "water",
+    speed: float = 500.0,
+    drag: float = 1.0,
+    standoff: float = 10e-3,
+    t_end: float = 60e-6,
+) -> Scene:
     """A steel projectile through a fluid layer into a concrete block: once in air, once in water
     (the seed's two pictures of fluid-structure interaction).
 
@@ -292,8 +377,11 @@ def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: fl
     (1/2 rho v^2 C_D A with C_D = 0.8: 8.5 m/s): the exchange drag acts wherever projectile and
     water share a node, along the sides too, not only on the nose.
     """
-    options.check("projectile_concrete", projectile_concrete_ranges(),
-                  dict(resolution=resolution, fluid=fluid, speed=speed, drag=drag, standoff=standoff, t_end=t_end))
+    options.check(
+        "projectile_concrete",
+        projectile_concrete_ranges(),
+        dict(resolution=resolution, fluid=fluid, speed=speed, drag=drag, standoff=standoff, t_end=t_end),
+    )
     h = 1e-3 / resolution
     radius, depth, p_d, p_l = 40e-3, 60e-3, 10e-3, 30e-3
     n_r = int(round(radius / h))
@@ -301,15 +389,27 @@ def projectile_concrete(resolution: float = 1.0, fluid: str = "water", speed: fl
     n_above = int(math.ceil((standoff + p_l) / h)) + 4
     grid = Grid(cells=(n_r, n_below + n_above), h=h, origin=(0.0, -n_below * h))
     proj_box = Box((0.0, standoff), (p_d / 2, standoff + p_l))
-    phases = (Phase("projectile", "steel_4340", proj_box, velocity=(0.0, -speed), field=0),
-              Phase("block", "concrete", Box((0.0, -n_below * h), (n_r * h, 0.0)), field=0),
-              Phase(fluid, fluid, Difference(Box((0.0, 0.0), (n_r * h, n_above * h)), (proj_box,)), field=1))
+    phases = (
+        Phase("projectile", "steel_4340", proj_box, velocity=(0.0, -speed), field=0),
+        Phase("block", "concrete", Box((0.0, -n_below * h), (n_r * h, 0.0)), field=0),
+        Phase(fluid, fluid, Difference(Box((0.0, 0.0), (n_r * h, n_above * h)), (proj_box,)), field=1),
+    )
     walls = (("x_hi", "slip"), ("y_lo", "slip"), ("y_hi", "slip"))
     return Scene(
-        name="projectile_concrete", description=f"steel projectile through {fluid} into concrete (2D axisymmetric)",
-        grid=grid, axisymmetric=True, materials=tuple(library_material(k) for k in ("steel_4340", "concrete", fluid)),
-        boundary=Boundary(faces=walls), phases=phases, drag=drag, interface_forces=False,
-        artificial_viscosity=(0.5, 2.0), t_end=t_end, n_out=12, cfl=0.3)
+        name="projectile_concrete",
+        description=f"steel projectile through {fluid} into concrete (2D axisymmetric)",
+        grid=grid,
+        axisymmetric=True,
+        materials=tuple(library_material(k) for k in ("steel_4340", "concrete", fluid)),
+        boundary=Boundary(faces=walls),
+        phases=phases,
+        drag=drag,
+        interface_forces=False,
+        artificial_viscosity=(0.5, 2.0),
+        t_end=t_end,
+        n_out=12,
+        cfl=0.3,
+    )
 
 
 def projectile_speed(scene, history) -> dict:
