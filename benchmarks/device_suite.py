@@ -74,8 +74,6 @@ def steps(out: Path, quick: bool, peers: str):
         "no:cacheprovider",
         "-o",
         "addopts=",
-        "-m",
-        "not slow",
         "tests/test_transfer_forms.py",
         "-k",
     ]

@@ -393,6 +393,7 @@ def test_a_bar_pulled_in_tension_fragments_on_the_time_scale_c_h_sets():
     assert np.asarray(final.pressure)[mid].mean() < -0.5e9  # intact: still in tension
 
 
+@pytest.mark.slow
 def test_tensile_closure_conserves_momentum_and_energy_in_a_plane_strain_impact():
     """Two al2024 blocks (no failure part) meet at +1500 / -500 m/s in 2D with fragmentation
     'tensile': finite, momentum exact, kinetic + internal energy within 1% (the pressure's factor
@@ -424,6 +425,7 @@ def test_tensile_closure_conserves_momentum_and_energy_in_a_plane_strain_impact(
     assert D.min() >= 0.0 and D.max() <= 1.0 and (D > 0.5).any() and (D == 0.0).any()
 
 
+@pytest.mark.slow
 def test_tensile_closure_gradient_wrt_c_h_matches_central_differences():
     """d(kinetic energy at 0.2 us)/d C_h of the pulled bar with fragmentation 'tensile' (D =
     tanh(eps_t / C_h) advanced exactly, smooth in C_h): autodiff against central differences

@@ -575,7 +575,7 @@ FORM_CASES = [
     pytest.param("ddmp-2d", marks=pytest.mark.slow),
     pytest.param("ddmp-3d", marks=pytest.mark.slow),
     "ddmp-axisymmetric",
-    "two-fields-1d",
+    pytest.param("two-fields-1d", marks=pytest.mark.slow),
     pytest.param("two-fields-axisymmetric", marks=pytest.mark.slow),
 ]
 

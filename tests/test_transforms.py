@@ -128,7 +128,12 @@ def plain_scan_gradient(small):
 # they are in the slow set
 @pytest.mark.parametrize(
     "mode",
-    [pytest.param(True, marks=pytest.mark.slow), "nested", "steps", pytest.param("auto", marks=pytest.mark.slow)],
+    [
+        pytest.param(True, marks=pytest.mark.slow),
+        pytest.param("nested", marks=pytest.mark.slow),
+        "steps",
+        pytest.param("auto", marks=pytest.mark.slow),
+    ],
 )
 def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradient, mode):
     """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
