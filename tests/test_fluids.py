@@ -157,6 +157,7 @@ def _check_dam_break(T, dE, Z, vmax):
     assert Z[-1] > 4.9  # the surge reached the far wall
 
 
+@pytest.mark.slow
 def test_dam_break_hits_the_wall_without_gaining_energy():
     """10 cells per a, CFL 0.3, through the impact to T = 5: the energy never rises (with no
     artificial viscosity, the default before fluids had one, it rose 0.5% of m g a by T = 5, 1.7% by

@@ -60,6 +60,7 @@ def check_conserved_before_the_back_wall(scene, s0, final):
     assert float(final.x[rod, 1].min()) < -8e-3  # it is penetrating: more than a diameter deep
 
 
+@pytest.mark.slow
 def test_one_and_two_velocity_fields_differ_where_rod_and_target_meet():
     """In two fields the rod's nose moves into the target's field before the common pressure and the
     drag stop it (measured depth at 12 us: 12.5 mm in one field, 13.8 mm in two); the rod's tail

@@ -9,6 +9,7 @@ import jaxmpm
 from jaxmpm.state import phase_slices
 
 
+@pytest.mark.slow
 def test_coarse_sandwich_conserves_mass_and_momentum_and_slows_the_rod():
     """Resolution 0.5, 10 us, free boundaries: mass exact, axial momentum conserved to 1e-9
     (nothing takes momentum), kinetic + internal energy within 1% (no artificial viscosity: the

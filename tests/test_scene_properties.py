@@ -207,6 +207,7 @@ BOXES = (((0.25, 0.3), (0.5, 0.6)), ((0.35, 0.25), (0.65, 0.45)), ((0.2, 0.5), (
     shape=st.sampled_from(["ddmp", "linear"]),
     fields=st.sampled_from([1, 2]),
 )
+@pytest.mark.slow
 def test_random_valid_scenes_run_20_steps_finite(box, vel, E, nu, rho, shape, fields):
     """Geometry, shape and grouping pick the compiled step (a few cached); material constants and
     velocities are Params and State, so each example runs without recompiling. (A body that leaves

@@ -212,6 +212,7 @@ def assert_same_run(ref, s, what):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12 * float(jnp.max(jnp.abs(a))), err_msg=f"{what} {name}")
 
 
+@pytest.mark.slow
 def test_a_three_field_impact_on_blocks_runs_as_on_the_whole_grid():
     """Blocks that hold every field (the striker's block follows it down) and blocks too small for
     the backing field (the whole grid every step): the run of the whole grid to round-off."""
