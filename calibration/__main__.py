@@ -223,6 +223,13 @@ def cmd_fit(args) -> int:
 
     start = _pair(args.start, "--start")
     _iterations(args.iterations)
+    if not (isinstance(args.starts, int) and args.starts >= 1):
+        raise ValueError(f"--starts {args.starts} is invalid: allowed an integer >= 1")
+    if args.starts > 1 and args.method != "adam":
+        raise ValueError(
+            f"--starts {args.starts} is invalid with --method {args.method}: allowed only with --method adam "
+            "(the starts advance together, one vmapped step each)"
+        )
     _positive(args.learning_rate, "--learning-rate", " (Adam's step in log space)")
     if not (args.landscape == 0 or args.landscape >= 2):
         raise ValueError(f"--landscape {args.landscape} is invalid: allowed 0 (none) or an integer >= 2")
@@ -238,15 +245,49 @@ def cmd_fit(args) -> int:
         flush=True,
     )
     t0 = time.perf_counter()
-    res = F.fit(
-        model.velocities,
-        meas.experiment,
-        theta_of(*start),
-        iterations=args.iterations,
-        learning_rate=args.learning_rate,
-        progress=not args.no_progress,
-        method=args.method,
-    )
+    starts = None
+    if args.starts == 1:
+        res = F.fit(
+            model.velocities,
+            meas.experiment,
+            theta_of(*start),
+            iterations=args.iterations,
+            learning_rate=args.learning_rate,
+            progress=not args.no_progress,
+            method=args.method,
+        )
+    else:
+        thetas = F.spread_starts(start, args.starts, args.landscape_cd, args.landscape_ch)
+        multi = F.fit_starts(
+            model.velocities,
+            meas.experiment,
+            thetas,
+            iterations=args.iterations,
+            learning_rate=args.learning_rate,
+            progress=not args.no_progress,
+        )
+        res = multi.best_fit
+        starts = [
+            dict(
+                start_C_d=float(np.exp(th[0])),
+                start_C_h=float(np.exp(th[1])),
+                C_d=float(f.values[0]),
+                C_h=float(f.values[1]),
+                loss=f.loss,
+                residuals_km_s=np.asarray(f.residuals).tolist(),
+                iterations=len(f.history),
+                stopped=f.stopped,
+                best=k == multi.best,
+            )
+            for k, (th, f) in enumerate(zip(thetas, multi.fits))
+        ]
+        print(f"{args.starts} starts in one vmapped call ({multi.seconds:.1f} s); the best kept (*):")
+        print(f"{'':2}{'start C_d':>10}{'start C_h':>10}{'C_d':>10}{'C_h':>10}{'loss':>11}{'its':>5}")
+        for s in starts:
+            print(
+                f"{'*' if s['best'] else '':2}{s['start_C_d']:>10.4g}{s['start_C_h']:>10.4g}{s['C_d']:>10.4g}"
+                f"{s['C_h']:>10.4g}{s['loss']:>11.4g}{s['iterations']:>5}"
+            )
     se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
     print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
@@ -294,6 +335,7 @@ def cmd_fit(args) -> int:
         residuals_km_s=res.residuals.tolist(),
         max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
         history=res.history,
+        starts=starts,
         landscape=land,
         settings=dict(
             resolution=args.resolution,
@@ -304,6 +346,7 @@ def cmd_fit(args) -> int:
             n_steps=model.n_steps,
             particles=int(model.state.x.shape[0]),
             start=list(start),
+            starts=args.starts,
             iterations=args.iterations,
             method=args.method,
             evaluations=res.evaluations,
@@ -447,6 +490,13 @@ def build_parser():
     f = sub.choices["fit"]
     f.add_argument("--iterations", type=int, default=30, help="optimiser iterations")
     f.add_argument("--start", default="1.0,0.15", help="starting C_d,C_h")
+    f.add_argument(
+        "--starts",
+        type=int,
+        default=1,
+        help="K >= 1 starting points, advanced together in one vmapped call (adam): --start, then K - 1 "
+        "Halton points over the landscape's log-spaced C_d x C_h box; the best kept, all reported",
+    )
     f.add_argument(
         "--method",
         choices=("adam", "lbfgs"),

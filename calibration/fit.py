@@ -230,6 +230,155 @@ def fit(
     return result
 
 
+def check_starts(theta0s):
+    """theta0s as a float array (K, 2) of finite starting points, K >= 1; ValueError otherwise."""
+    th = _float_array(theta0s)
+    _require(
+        th is not None and th.ndim == 2 and th.shape[0] >= 1 and th.shape[1] == 2 and np.all(np.isfinite(th)),
+        "theta0s",
+        theta0s,
+        "finite numbers of shape (K, 2), K >= 1: K starting points (log C_d, log C_h)",
+    )
+    return th
+
+
+@dataclass
+class MultiStartResult:
+    fits: list  # one FitResult per start, in the order of the starts
+    best: int  # index of the start whose best iterate has the lowest loss
+    seconds: float = 0.0
+
+    @property
+    def best_fit(self):
+        return self.fits[self.best]
+
+
+def best_start(fits):
+    """Index of the fit with the lowest loss (the first of equals); non-finite losses never win
+    unless all are."""
+    losses = np.array([f.loss if np.isfinite(f.loss) else np.inf for f in fits])
+    return int(np.argmin(losses))
+
+
+def fit_starts(
+    velocities,
+    target,
+    theta0s,
+    iterations=30,
+    learning_rate=0.15,
+    decay=0.97,
+    tol=1e-6,
+    rtol=1e-4,
+    patience=5,
+    weights=None,
+    progress=True,
+):
+    """Adam from each of K starting points theta0s (K, 2), all K advanced together: every
+    iteration is one vmapped value-and-gradient of the K points (`jax.vmap` of `fit`'s Adam step),
+    so a batch costs one compiled program. Each start stops by `fit`'s rules (loss < tol, or a
+    relative change < rtol over patience iterations, or a non-finite loss or gradient); a stopped
+    start's theta is then held while the others go on. Returns a MultiStartResult: a FitResult per
+    start (its best iterate and history, as `fit` would give it alone) and the index of the best.
+    Bad arguments raise ValueError before any run."""
+    check_options(iterations, learning_rate, decay, tol, rtol, patience, "adam")
+    starts = check_starts(theta0s)
+    target, _, weights = check_arrays(velocities, target, starts[0], weights)
+    loss = loss_fn(velocities, target, weights)
+    init, step = _adam_step(loss, learning_rate, decay)
+    vstep = jit(jax.vmap(step))
+    K = starts.shape[0]
+    theta = jnp.asarray(starts, jnp.zeros(()).dtype)
+    state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), jax.vmap(init)(theta))
+    fits = [
+        FitResult(theta=starts[k], loss=np.inf, residuals=np.full(target.shape, np.nan), method="adam")
+        for k in range(K)
+    ]
+    for f in fits:
+        f.stopped = f"iterations ({iterations})"
+    active = np.ones(K, bool)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=iterations, desc=f"fit (adam, {K} starts)", unit="it")
+    start = time.perf_counter()
+    for it in range(iterations):
+        t0 = time.perf_counter()
+        new_theta, new_state, loss_v, r, g, _ = vstep(theta, state)
+        loss_v, r, g = np.asarray(loss_v), np.asarray(r), np.asarray(g)
+        seconds = time.perf_counter() - t0
+        th_np = np.asarray(theta)
+        for k in np.flatnonzero(active):
+            f = fits[k]
+            f.evaluations += 1
+            if not (np.isfinite(loss_v[k]) and np.all(np.isfinite(g[k]))):
+                f.stopped = f"non-finite loss or gradient at iteration {it} (theta = {th_np[k].tolist()})"
+                active[k] = False
+                continue
+            c = np.exp(th_np[k])
+            f.history.append(
+                dict(
+                    iteration=it,
+                    loss=float(loss_v[k]),
+                    C_d=float(c[0]),
+                    C_h=float(c[1]),
+                    grad=g[k].tolist(),
+                    grad_norm=float(np.linalg.norm(g[k])),
+                    residuals=r[k].tolist(),
+                    evaluations=1,
+                    seconds=seconds,
+                )
+            )
+            if loss_v[k] < f.loss:
+                f.theta, f.loss, f.residuals = th_np[k].copy(), float(loss_v[k]), r[k].copy()
+            if loss_v[k] < tol:
+                f.stopped = f"loss {loss_v[k]:.3g} < tol {tol:g}"
+                active[k] = False
+                continue
+            losses = [h["loss"] for h in f.history]
+            if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
+                f.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
+                active[k] = False
+        if bar is not None:
+            b = best_start(fits)
+            bar.set_postfix_str(f"best loss={fits[b].loss:.4g} (start {b}), {int(active.sum())} active")
+            bar.update(1)
+        if not active.any():
+            break
+        keep = jnp.asarray(active)
+        hold = lambda new, old: jnp.where(keep.reshape((K,) + (1,) * (new.ndim - 1)), new, old)
+        theta = hold(new_theta, theta)
+        state = jax.tree.map(hold, new_state, state)
+    if bar is not None:
+        bar.close()
+    seconds = time.perf_counter() - start
+    for f in fits:
+        f.seconds = seconds
+    return MultiStartResult(fits=fits, best=best_start(fits), seconds=seconds)
+
+
+def spread_starts(first, k, c_d_range, c_h_range):
+    """k starting points (k, 2) of theta = (log C_d, log C_h): `first` (C_d, C_h), then k - 1 points
+    of the Halton sequence (bases 2 and 3, unscrambled: the same points every run) over the
+    log-spaced box c_d_range x c_h_range."""
+    if not (isinstance(k, (int, np.integer)) and k >= 1):
+        raise ValueError(f"starts = {k!r} is invalid: allowed an integer >= 1")
+
+    def halton(i, base):
+        f, x = 1.0, 0.0
+        while i > 0:
+            f /= base
+            x += f * (i % base)
+            i //= base
+        return x
+
+    lo = np.log([c_d_range[0], c_h_range[0]])
+    hi = np.log([c_d_range[1], c_h_range[1]])
+    pts = [np.log(np.asarray(first, float))]
+    pts += [lo + (hi - lo) * np.array([halton(i, 2), halton(i, 3)]) for i in range(1, k)]
+    return np.stack(pts)
+
+
 def standard_errors(velocities, theta, residuals, weights=None):
     """Gauss-Newton standard errors of theta (2,) and of (C_d, C_h) (2,), and the Jacobian (3, 2)."""
     J = np.asarray(jax.jacfwd(velocities)(jnp.asarray(theta)))

@@ -54,7 +54,14 @@ def fit_report(result, out):
     b.set_yscale("log")
     b.set_xlabel("C_d")
     b.set_ylabel("C_h")
-    b.set_title("path")
+    for st in result.get("starts") or []:  # the multi-start fit: every start and where it ended
+        b.annotate(
+            "",
+            (st["C_d"], st["C_h"]),
+            (st["start_C_d"], st["start_C_h"]),
+            arrowprops=dict(arrowstyle="->", color="C3" if st["best"] else "0.5", lw=0.8),
+        )
+    b.set_title("path" + (" (arrows: every start, red: the best)" if result.get("starts") else ""))
     paths.append(_save(fig, out / "loss_history.png"))
     fig = Figure(figsize=(5, 3.2), layout="constrained")
     ax = fig.subplots()

@@ -314,6 +314,11 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
         (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
         (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
         (["table", "--step-safety", "0.5"], r"--step-safety 0.5 is invalid: allowed a finite number >= 1"),
+        (["fit", "--starts", "0"], r"--starts 0 is invalid: allowed an integer >= 1"),
+        (
+            ["fit", "--starts", "3", "--method", "lbfgs"],
+            r"--starts 3 is invalid with --method lbfgs: allowed only with --method adam",
+        ),
         (
             ["table", "--data", "no/such/table.csv"],
             r"--data no/such/table.csv: no such file \(allowed the path of a CSV",
@@ -482,3 +487,86 @@ def test_the_fits_checks_after_the_optimiser_follow_no_progress(capfd):
     assert "step/s" not in capfd.readouterr().err
     model.reached(theta)
     assert "step/s" in capfd.readouterr().err
+
+
+def two_basins(theta):
+    """Observables whose loss against TWO_BASIN_TARGET has two minima: theta_0 ~ +1 (loss 0) and
+    theta_0 ~ -1 (loss ~0.36), theta_1 = 0 in both."""
+    return jnp.stack([theta[0] ** 2, theta[1], 0.3 * (theta[0] - 1.0)])
+
+
+TWO_BASIN_TARGET = np.array([1.0, 0.0, 0.0])
+
+
+def test_multistart_runs_every_start_and_keeps_the_best():
+    """`fit_starts` advances K starts in one vmapped step: each start's history equals the single
+    `fit` from it (so every start ran, each on its own), the starts in the two basins end in their
+    own minima, and the best kept is the one with the lowest loss (the second start here, not the
+    first)."""
+    from calibration.fit import fit, fit_starts
+
+    jax.config.update("jax_enable_x64", True)
+    starts = np.array([[-2.0, 0.5], [2.0, -0.5], [-0.5, 1.0]])
+    kw = dict(iterations=80, learning_rate=0.1, decay=0.99, progress=False)
+    multi = fit_starts(two_basins, TWO_BASIN_TARGET, starts, **kw)
+    assert len(multi.fits) == 3
+    for k, start in enumerate(starts):
+        alone = fit(two_basins, TWO_BASIN_TARGET, start, **kw)
+        got = multi.fits[k]
+        assert len(got.history) == len(alone.history) > 5, k
+        np.testing.assert_allclose([h["loss"] for h in got.history], [h["loss"] for h in alone.history], rtol=1e-12)
+        np.testing.assert_allclose(got.theta, alone.theta, rtol=1e-12)
+        assert got.stopped == alone.stopped
+    ends = np.array([f.theta[0] for f in multi.fits])
+    assert ends[0] < -0.8 and ends[1] > 0.9 and ends[2] < -0.8, ends  # each in its own basin
+    losses = [f.loss for f in multi.fits]
+    assert multi.best == 1 == int(np.argmin(losses))
+    assert multi.best_fit is multi.fits[1]
+    assert multi.best_fit.loss < 1e-3 < min(losses[0], losses[2])
+
+
+def test_multistart_refuses_bad_starts():
+    from calibration.fit import fit_starts, spread_starts
+
+    for bad in (np.zeros((0, 2)), np.zeros((2, 3)), [[0.0, np.nan]], np.zeros(2)):
+        with pytest.raises(ValueError, match=r"(?s)theta0s = .* is invalid: allowed finite numbers of shape \(K, 2\)"):
+            fit_starts(two_basins, TWO_BASIN_TARGET, bad, progress=False)
+    with pytest.raises(ValueError, match=r"starts = 0 is invalid: allowed an integer >= 1"):
+        spread_starts((1.0, 0.15), 0, (0.1, 10.0), (0.02, 1.0))
+
+
+def test_spread_starts_fill_the_box_from_the_given_start():
+    from calibration.fit import spread_starts
+
+    th = spread_starts((1.0, 0.15), 5, (0.1, 10.0), (0.02, 1.0))
+    assert th.shape == (5, 2)
+    np.testing.assert_allclose(np.exp(th[0]), [1.0, 0.15])
+    c = np.exp(th[1:])
+    assert np.all((c[:, 0] >= 0.1) & (c[:, 0] <= 10.0) & (c[:, 1] >= 0.02) & (c[:, 1] <= 1.0))
+    assert len(np.unique(np.round(th, 12), axis=0)) == 5  # all different
+    np.testing.assert_array_equal(th, spread_starts((1.0, 0.15), 5, (0.1, 10.0), (0.02, 1.0)))  # reproducible
+
+
+@pytest.mark.slow
+def test_fit_command_with_starts_runs_every_start_and_reports_them(tmp_path, capsys):
+    """`fit --starts 2` at the coarsest resolution and a short end time: both starts are run in one
+    vmapped call (each has its iterations), all are reported in result.json, and the fitted values
+    are those of the start with the lowest loss."""
+    import json
+
+    from calibration.__main__ import main
+
+    out = tmp_path / "fit"
+    argv = ["fit", "--resolution", "0.75", "--t-end", "2e-7", "--starts", "2", "--iterations", "2"]
+    assert main(["--no-cache"] + argv + ["--landscape", "0", "--no-progress", "--out", str(out)]) == 0
+    result = json.loads((out / "result.json").read_text())
+    starts = result["starts"]
+    assert len(starts) == 2 and result["settings"]["starts"] == 2
+    assert [s["iterations"] for s in starts] == [2, 2]
+    assert starts[0]["start_C_d"] == pytest.approx(1.0) and starts[0]["start_C_h"] == pytest.approx(0.15)
+    best = int(np.argmin([s["loss"] for s in starts]))
+    assert [s["best"] for s in starts] == [k == best for k in range(2)]
+    assert result["fitted"]["C_d"] == pytest.approx(starts[best]["C_d"], rel=1e-12)
+    assert result["fitted"]["C_h"] == pytest.approx(starts[best]["C_h"], rel=1e-12)
+    assert result["loss"] == pytest.approx(starts[best]["loss"], rel=1e-12)
+    assert "2 starts in one vmapped call" in capsys.readouterr().out
