@@ -263,19 +263,25 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     scene = lay.scene
     d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
+    carried = rate  # the volume rate the velocity field imposes on the material (E4's a div<v>)
     gate = None
     D = 0.5 * (L + jnp.swapaxes(L, 1, 2))
     tensile = scene.c_h is not None and scene.fragmentation == "tensile"
     if scene.c_h is not None:
         p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
         rate = material_volume_rate(lay, params, state, L, dt, p_amb)
+        carried = pressure_factor(lay, params, state) * jnp.trace(L, axis1=1, axis2=2)
         L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
         gate = tension_mask(lay, state) if tensile else fragmentation_gate(lay, state)
     vol = state.volume * jnp.exp(dt * rate)
     rho_new = state.mass / vol
     q = None
     if scene.viscosity is not None:
-        q = artificial_viscosity(lay, params, state, rho_new, jnp.trace(L_mat, axis1=1, axis2=2))
+        # q damps the velocity field's compression (a tr D, E4), not the closure's relaxation B (E8):
+        # a fragment contracting to relieve its own tension is no shock. Driven by B, q turned
+        # tensile fragments' pressure positive, the pressure's factor a to 1, and the fragments
+        # pushed their neighbours with a pressure no velocity field compressed (docs/closure.md)
+        q = artificial_viscosity(lay, params, state, rho_new, carried)
         if not all(scene.viscous_phases):
             q = jnp.where(jnp.asarray(viscous_particles(lay)), q, 0.0)
     work = dt * 0.5 * (vol + state.volume) / state.mass

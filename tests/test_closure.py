@@ -443,3 +443,34 @@ def test_tensile_closure_gradient_wrt_c_h_matches_central_differences():
     fd = float((f(0.008 * (1 + 1e-6)) - f(0.008 * (1 - 1e-6))) / (2e-6 * 0.008))
     np.testing.assert_allclose(g, fd, rtol=1e-5)
     assert g < 0  # larger C_h: fragments later, its tension holds the bar back longer
+
+
+def test_a_fragment_relaxing_its_tension_gets_no_artificial_viscosity():
+    """A fragmented bar (D = 1) in 10 GPa tension, at rest, with the debris cloud's artificial
+    viscosity: its velocity field compresses nothing, so q = 0 and the stored pressure is the EOS's,
+    K (1 - V / V0), at every output while the closure's relaxation B (E8) brings it to 0; no
+    kinetic energy appears. Before q was taken from the velocity field's rate (a tr D) it was taken
+    from the material's (a tr D + B): the contraction B of a fragment relieving its own tension
+    gave it a viscous pressure of ~0.1 K, which in the debris cloud turned tensile fragments'
+    pressure positive, switched the pressure's factor a to 1 and let them push their neighbours
+    (backward-flying particles, energy growing by ~1%)."""
+    K, p0 = 70e9, -10e9
+    scene = dataclasses.replace(pulled_bar(0.02), artificial_viscosity=(0.5, 2.0), t_end=0.2e-6, n_out=8)
+    params = jaxmpm.default_params(scene)
+    s0 = jaxmpm.init_state(scene, params)
+    n = s0.x.shape[0]
+    J = 1.0 - p0 / K  # linear EOS: p = K (1 - V / V0)
+    s0 = dataclasses.replace(
+        s0,
+        volume=J * s0.volume,
+        damage=jnp.ones(n),
+        pressure=jnp.full(n, p0),
+        stress=jnp.full((n, 1, 1), -p0),
+    )
+    _, hist = jaxmpm.simulate(scene, params, s0, progress=False)
+    V0 = np.asarray(s0.mass) / 2700.0
+    p = np.asarray(hist.pressure)
+    eos = K * (1.0 - np.asarray(hist.volume) / V0)
+    np.testing.assert_allclose(p, eos, rtol=0, atol=1e-9 * abs(p0))  # no q
+    assert p[-1].max() > 0.1 * p0 and p.max() <= 0.0  # relaxed toward 0 from below, never past it
+    assert float(np.abs(np.asarray(hist.v)).max()) == 0.0  # nothing pushed
