@@ -99,7 +99,7 @@ def debris_cloud(
     with rho_f the air's density. The length d is the cell size h (Scene.drag_length None): the run
     resolves fragments down to about a cell (particles within a cell's nodes move with one nodal
     velocity, so a fragment smaller than a cell cannot leave its neighbours), and its leading
-    fragments are one-cell clumps; the drag on a fragment of size d is then the seed's law for it
+    debris on the axis is a layer about a cell thick; the drag on a fragment of size d is the seed's law for it
     (the test's estimate dv/dt = -(3/4) C_D rho_air v^2 / (rho_s d) uses the same d). `drag_heating`
     with the chamber books the drag's work between every pair of fields, also with fields = 1. The
     grid is the vacuum scene's: the bow shock stays within a few cells of the front, and the first
