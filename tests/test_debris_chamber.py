@@ -236,8 +236,10 @@ def test_chamber_momentum_and_energy_over_the_run_with_the_drag_heat():
 @pytest.mark.slow
 def test_the_front_velocity_gradient_with_respect_to_log_drag_matches_central_differences():
     """d(point 1 velocity)/d log C_d at 10.5 bar by reverse mode against central differences (step
-    1e-3 in log C_d), one field for the solids, 1.5 us at a fixed step (the front over 0.75-1.5 us)."""
-    scene = cloud(chamber_pressure=HIGH, t_end=1.5e-6)
+    1e-4 in log C_d), one field for the solids, a plate of 6 mm radius (a smaller grid), 1 us at a
+    fixed step (the front over 0.5-1 us). Measured: 15.3485 m/s both ways (central differences at
+    steps 1e-2, 1e-3, 1e-4, 1e-5: 15.99, 15.34896, 15.348501, 15.3484955; reverse mode 15.3484954)."""
+    scene = cloud(chamber_pressure=HIGH, t_end=1e-6, plate_radius=6e-3)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
     from jaxmpm.step import cfl_time_step
@@ -252,8 +254,8 @@ def test_the_front_velocity_gradient_with_respect_to_log_drag_matches_central_di
 
     g = float(jax.jit(jax.grad(front_velocity))(0.0))
     f = jax.jit(front_velocity)
-    eps = 1e-3
+    eps = 1e-4
     fd = (float(f(eps)) - float(f(-eps))) / (2 * eps)
     print("d v1 / d log C_d", g, "central differences", fd)
     assert abs(fd) > 1.0  # the drag acts on the front
-    assert g == pytest.approx(fd, rel=1e-3)
+    assert g == pytest.approx(fd, rel=1e-5)
