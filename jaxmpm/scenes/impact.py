@@ -87,24 +87,25 @@ def debris_cloud(
     Walls: slip on the outer radius, top and bottom of the grid (jets from the contact rim reach them;
     axial momentum is kept where only the radial wall is hit). Measures: the debris cloud's shape
     and the axial velocities of its features.
-    Chamber (`chamber_pressure` in Pa; None: vacuum): the chamber's air (`chamber_air`: the library's
-    `air`, an ideal gas, at that pressure and the library's room temperature) fills the grid around
-    the sphere and the plate, but for the sphere's shadow (r < R, from the plate up to the sphere's
-    equator: the gap's air would be trapped in the impact and jetted out at tens of km/s; in the
-    experiment the sphere's own bow shock has pushed it aside), in its own velocity field, after the solids' `fields` (fields = 1: the
-    solids | air; 2: projectile | plate | air, the seed's two- and three-velocity runs). All fields
-    share the common pressure (E6, E13, with the continuity form): the solids' faces carry the air's
-    pressure, so that the air at rest stays at rest; and the air is coupled to the solids by the
-    exchange drag (E3) C_d = `drag`, the seed's interface drag F = C_d theta_i theta_j rho_f |dv| dv / d
-    with rho_f the air's density. The length d is the cell size h (Scene.drag_length None): the run
-    resolves fragments down to about a cell (particles within a cell's nodes move with one nodal
-    velocity, so a fragment smaller than a cell cannot leave its neighbours), and its leading
-    debris on the axis is a layer about a cell thick; the drag on a fragment of size d is the seed's law for it
-    (the test's estimate dv/dt = -(3/4) C_D rho_air v^2 / (rho_s d) uses the same d). `drag_heating`
-    with the chamber books the drag's work between every pair of fields, also with fields = 1. The
-    grid is the vacuum scene's: the bow shock stays within a few cells of the front, and the first
-    waves reach a wall (the top one) at about 2.5-3 us, after which the slip walls take a little
-    axial momentum (docs/guide/scenes.md has the measured fronts, the bow shock and run times).
+    Chamber (`chamber_pressure` in Pa; None: vacuum): the chamber's air (`chamber_air`: the
+    library's `air`, an ideal gas, at that pressure and the library's room temperature) fills the
+    grid around the sphere and the plate, but for the sphere's shadow (r < R, from the plate up to
+    the sphere's equator: the gap's air would be trapped in the impact and jetted out at tens of
+    km/s; in the experiment the sphere's own bow shock has pushed it aside), in its own velocity
+    field, after the solids' `fields` (fields = 1: the solids | air; 2: projectile | plate | air,
+    the seed's two- and three-velocity runs). All fields share the common pressure (E6, E13, with
+    the continuity form): the solids' faces carry the air's pressure, so that the air at rest stays
+    at rest; and the air is coupled to the solids by the exchange drag (E3) C_d = `drag`, the seed's
+    interface drag F = C_d theta_i theta_j rho_f |dv| dv / d with rho_f the air's density. The
+    length d is the cell size h (Scene.drag_length None): the run resolves fragments down to about a
+    cell (particles within a cell's nodes move with one nodal velocity, so a fragment smaller than a
+    cell cannot leave its neighbours), and its leading debris on the axis is a layer about a cell
+    thick; the drag on a fragment of size d is the seed's law for it (the test's estimate dv/dt =
+    -(3/4) C_D rho_air v^2 / (rho_s d) uses the same d). `drag_heating` with the chamber books the
+    drag's work between every pair of fields, also with fields = 1. The grid is the vacuum scene's:
+    the bow shock stays within a few cells of the front, and the first waves reach the walls at
+    about 2.5-3 us, after which the slip walls take a little axial momentum (docs/guide/scenes.md
+    has the measured fronts, the bow shock and run times).
 
     Status: partly validated. Measured (one field, C_h = 0.02, float64, features over 3-6 us),
     points 1, 2, 4 in km/s against the experiment's 6.3, 6.1, 3.9 (the seed: 6.29, 5.97, 3.92):
@@ -147,8 +148,8 @@ def debris_cloud(
     air = chamber_pressure is not None
     if drag_heating and fields != 2 and not air:
         raise ValueError(
-            f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 "
-            "(the heat is the drag's work between the projectile's and the plate's fields)"
+            f"debris_cloud: drag_heating = {drag_heating!r} is invalid: allowed only with fields = 2 or a "
+            "chamber_pressure (the heat is the drag's work between velocity fields; one field in vacuum has no drag)"
         )
     h = DEBRIS_CELL / resolution
     gap = h if gap is None else gap
