@@ -9,7 +9,8 @@ which tends to max_p z_p as w -> 0 and lies below it by at most w log(M / m_max)
 weight, m_max the weight of the extreme particle); soft_min(z) = -soft_max(-z). Features (the
 numbering of Piekutowski's debris-cloud sketches, as in the calibration data):
 
-  point 1  leading edge of the cloud: the front of all debris mass (soft min of z, all particles)
+  point 1  leading edge of the cloud: the front of all debris mass (soft min of z, all particles
+           but those of fluid phases: a chamber's air is not debris)
   point 2  front of the projectile material on the axis (soft min of z over the projectile,
            weighted by (1 - (r / r_axis)^2)^2 within r_axis of the axis, 0 beyond)
   point 4  rear of the projectile material on the axis (soft max of z, same weights)
@@ -51,6 +52,22 @@ def axis_weight(r, r_axis):
     return u * u
 
 
+def debris_mass(scene, state):
+    """The particles' mass, 0 on the particles of fluid phases (no shear strength: a chamber's gas),
+    so that the cloud's front is the solids' front."""
+    from jaxmpm.scene import is_fluid
+
+    if not any(is_fluid(scene.material(p).model) for p in scene.phases):
+        return state.mass
+    keep = jnp.concatenate(
+        [
+            jnp.full(sl.stop - sl.start, 0.0 if is_fluid(scene.material(p).model) else 1.0)
+            for p, sl in zip(scene.phases, phase_slices(scene))
+        ]
+    )
+    return state.mass * keep
+
+
 def feature_positions(scene, state, width=None, r_axis=None, projectile="projectile"):
     """(3,) axial positions (m) of points 1, 2, 4 in one State (soft definitions)."""
     h = scene.grid.h
@@ -59,7 +76,11 @@ def feature_positions(scene, state, width=None, r_axis=None, projectile="project
     r, z, m = _projectile(scene, state, projectile)
     w_axis = m * axis_weight(r, r_axis)
     return jnp.stack(
-        [soft_min(state.x[:, 1], state.mass, width), soft_min(z, w_axis, width), soft_max(z, w_axis, width)]
+        [
+            soft_min(state.x[:, 1], debris_mass(scene, state), width),
+            soft_min(z, w_axis, width),
+            soft_max(z, w_axis, width),
+        ]
     )
 
 
@@ -69,8 +90,13 @@ def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
     r_axis = scene.grid.h if r_axis is None else r_axis
     r, z, _ = _projectile(scene, state, projectile)
     near = r < r_axis
+    solid = debris_mass(scene, state) > 0
     return jnp.stack(
-        [jnp.min(state.x[:, 1]), jnp.min(jnp.where(near, z, jnp.inf)), jnp.max(jnp.where(near, z, -jnp.inf))]
+        [
+            jnp.min(jnp.where(solid, state.x[:, 1], jnp.inf)),
+            jnp.min(jnp.where(near, z, jnp.inf)),
+            jnp.max(jnp.where(near, z, -jnp.inf)),
+        ]
     )
 
 

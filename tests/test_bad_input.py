@@ -813,6 +813,12 @@ CASES = [
         r"debris_cloud: option\(s\) \['resolutoin'\] are unknown: allowed \['resolution', 'fields'",
     ),
     (
+        "a chamber's pressure of zero",
+        lambda: jaxmpm.load_scene("debris_cloud", chamber_pressure=0.0),
+        r"debris_cloud: chamber_pressure = 0.0 is invalid: allowed a finite number > 0 Pa \(the chamber's air\); "
+        r"not given: vacuum",
+    ),
+    (
         "overrides as text",
         lambda: jaxmpm.load_scene("elastic_impact", overrides="grid.cells=[32,32]"),
         r"overrides = 'grid.cells=\[32,32\]' is invalid: allowed a mapping \{'dotted.key': value\}",
