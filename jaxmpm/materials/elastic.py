@@ -70,11 +70,21 @@ def hypoelastic_update(c, F, stress, L, dt):
     return update_F(F, L, dt), stress + dt * rate
 
 
-def linear_fluid_update(c, F, stress, L, dt):
-    """p = -K (J - 1), sigma = -p I, J = det F."""
-    F = update_F(F, L, dt)
-    J = jnp.linalg.det(F) if F.shape[-1] > 1 else F[..., 0, 0]
-    eye = jnp.eye(F.shape[-1], dtype=F.dtype)
+def linear_fluid_update(c, F, stress, L, dt, rho_new=None):
+    """p = -K (J - 1), sigma = -p I. J = rho0 / rho_new, the particle's volume ratio after the step
+    (the volume the grid forces act on), with F = J^(1/d) I: a fluid keeps no shear. rho_new None:
+    J = det F of the forward update F = (I + dt L) F, which drifts from the volume ratio where L
+    has a large rotational or shear part (det(I + dt L) = 1 + dt tr L + dt^2 det L in 2D against
+    the volume's exp(dt tr L)): splashed particles then held a pressure of the opposite sign to
+    their volume change and were driven apart."""
+    d = F.shape[-1]
+    eye = jnp.eye(d, dtype=F.dtype)
+    if rho_new is None:
+        F = update_F(F, L, dt)
+        J = jnp.linalg.det(F) if d > 1 else F[..., 0, 0]
+    else:
+        J = c["rho0"] / rho_new
+        F = J[..., None, None] ** (1.0 / d) * eye
     return F, (c["K"] * (J - 1))[..., None, None] * eye
 
 

@@ -80,12 +80,13 @@ _POS = (0.0, math.inf, False, False)
 _SOLID = {"rho0": _POS + ("kg/m^3",), "E": _POS + ("Pa",), "nu": (-1.0, 0.5, False, False, "")}
 
 
-def _total_stress(fn):
+def _total_stress(fn, volumetric=False):
     """Wrap a total-stress update fn(c, F, stress, L, dt) -> (F, stress) in the common interface:
-    pressure = -tr(stress) / d and the energy from the midpoint stress the grid sees."""
+    pressure = -tr(stress) / d and the energy from the midpoint stress the grid sees. volumetric:
+    fn also takes the density after the step, rho_new (N,) kg/m^3 (a fluid's state)."""
 
     def update(c, mp, L, D, dt, work, q, alpha_of):
-        F, sig = fn(c, mp.F, mp.stress, L, dt)
+        F, sig = fn(c, mp.F, mp.stress, L, dt, mp.rho_new) if volumetric else fn(c, mp.F, mp.stress, L, dt)
         if (
             q is not None
         ):  # artificial viscosity: nonzero only for linear_fluid here (scene.viscous_phases), whose stress is recomputed from F
@@ -111,7 +112,7 @@ MODELS = {
     ),
     "linear_fluid": Model(
         {"rho0": _POS + ("kg/m^3",), "K": _POS + ("Pa",)},
-        _total_stress(elastic.linear_fluid_update),
+        _total_stress(elastic.linear_fluid_update, volumetric=True),
         elastic.fluid_wave_speed,
         elastic.fluid_bulk_modulus,
     ),

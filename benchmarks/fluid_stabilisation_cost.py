@@ -1,0 +1,145 @@
+"""What the fluids' stabilisation costs per step, and what the step cost before it:
+  - the density diffusion of fluid phases (`jaxmpm.step.density_diffusion_rate`: one scatter of
+    two channels and one gather a step), on and off;
+  - linear_fluid's pressure from the particle's volume ratio (now) or from det F of the forward
+    update F = (I + dt L) F (before).
+Scenes: the dam break of tests/test_fluids.py (20 cells per a, Tait water) and the peers' mpm88
+(128^2, linear_fluid) with DDMP and 'musl', float32.
+
+"off" replaces `jaxmpm.step.diffused_particles` with one that marks no particle, "det F" the
+linear_fluid model with the one of before: both only for this measurement. Each configuration is
+compiled as a `jaxmpm.jit` loop of --steps steps, run once from the initial state, then --repeats
+times from that state, the configurations of a scene interleaved; the median and the fastest time
+per step are printed and written to a CSV (--out, default
+benchmarks/results/fluid_stabilisation_cost.csv). On a loaded machine the fastest run is the
+better measure of the cost (other processes only add time).
+
+Run:  python benchmarks/fluid_stabilisation_cost.py
+      python benchmarks/fluid_stabilisation_cost.py --steps 500 --repeats 7
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import dataclasses
+import datetime
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import jaxmpm
+from jaxmpm import step as step_module
+from jaxmpm.materials import elastic, models
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
+from test_fluids import dam_break  # noqa: E402
+
+
+@contextlib.contextmanager
+def diffusion_off():
+    keep = step_module.diffused_particles
+    step_module.diffused_particles = lambda lay: None
+    try:
+        yield
+    finally:
+        step_module.diffused_particles = keep
+
+
+@contextlib.contextmanager
+def pressure_from_det_F():
+    keep = models.MODELS["linear_fluid"]
+    models.MODELS["linear_fluid"] = dataclasses.replace(keep, update=models._total_stress(elastic.linear_fluid_update))
+    try:
+        yield
+    finally:
+        models.MODELS["linear_fluid"] = keep
+
+
+SCENES = {
+    "dam_break_20": (lambda: dam_break(20, 8.0), {"default": (), "diffusion off": (diffusion_off,)}),
+    "mpm88_ddmp": (
+        lambda: dataclasses.replace(jaxmpm.load_scene("mpm88"), shape="ddmp", transfer="musl"),
+        {
+            "default": (),
+            "diffusion off": (diffusion_off,),
+            "diffusion off, det F pressure (before)": (diffusion_off, pressure_from_det_F),
+        },
+    ),
+}
+
+
+def per_step_ms(make_scene, configs, steps, repeats):
+    """{config: [ms per step of each timed run]} with the configurations interleaved."""
+    loops = {}
+    for name, patches in configs.items():
+        with contextlib.ExitStack() as stack:
+            for patch in patches:
+                stack.enter_context(patch())
+            scene = make_scene()
+            params = jaxmpm.default_params(scene, dtype=jnp.float32)
+            step = jaxmpm.make_step(scene)
+            run = jaxmpm.jit(
+                lambda s, params=params, step=step: jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s)
+            )
+            loops[name] = (run, jax.block_until_ready(run(jaxmpm.init_state(scene, params))))  # traced here
+    times = {name: [] for name in configs}
+    for _ in range(repeats):
+        for name, (run, s) in loops.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(run(s))
+            times[name].append((time.perf_counter() - t0) / steps * 1e3)
+    return times
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--out", default=str(HERE / "results" / "fluid_stabilisation_cost.csv"))
+    add_overwrite(ap)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    check_outputs(out, overwrite=args.overwrite)
+    rows = []
+    for scene_name, (make_scene, configs) in SCENES.items():
+        times = per_step_ms(make_scene, configs, args.steps, args.repeats)
+        base, fastest = statistics.median(times["default"]), min(times["default"])
+        for name, t in times.items():
+            rows.append(
+                {
+                    "scene": scene_name,
+                    "config": name,
+                    "ms_per_step": statistics.median(t),
+                    "ratio_to_default": statistics.median(t) / base,
+                    "fastest_ms_per_step": min(t),
+                    "fastest_ratio_to_default": min(t) / fastest,
+                    "runs_ms": " ".join(f"{x:.3f}" for x in t),
+                }
+            )
+            print(
+                f"{scene_name:14s} {name:40s} {rows[-1]['ms_per_step']:.3f} ms/step, x{rows[-1]['ratio_to_default']:.3f}; "
+                f"fastest {min(t):.3f}, x{min(t) / fastest:.3f} "
+                f"(runs {rows[-1]['runs_ms']})",
+                flush=True,
+            )
+    with open(out, "w", newline="") as f:
+        f.write(
+            f"# jaxmpm fluid_stabilisation_cost, {datetime.date.today()}, jax {jax.__version__}, "
+            f"{jax.devices()[0].platform}, float32\n"
+        )
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
