@@ -54,7 +54,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxmpm  # noqa: E402
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene  # noqa: E402
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene  # noqa: E402
 from jaxmpm.scenes import initial_state  # noqa: E402
 from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar  # noqa: E402
 

@@ -44,11 +44,11 @@ HERE = Path(__file__).resolve().parent
 
 def stencil_apic_update(lay, params, state, dt):
     """Reference: the APIC step with (N, S, C) transfers (same physics as step.apic_update)."""
-    from jaxmpm import fields
-    from jaxmpm.constitutive import constitutive
-    from jaxmpm.shapes import stencil
+    from jaxmpm.stages import fields
+    from jaxmpm.stages.constitutive import constitutive
+    from jaxmpm.numerics.shapes import stencil
     from jaxmpm.step import _apply_bc, _mass_floor, body_acceleration
-    from jaxmpm.transfer import gather, scatter, stencil_apply, stencil_outer
+    from jaxmpm.numerics.transfer import gather, scatter, stencil_apply, stencil_outer
 
     scene = lay.scene
     dinv = 4.0 / scene.grid.h**2
@@ -74,10 +74,10 @@ def stencil_apic_update(lay, params, state, dt):
 def offset_apic_update(lay, params, state, dt):
     """Reference: the APIC step with the particle-to-grid transfer by `transfer.scatter_by_offset`
     (same physics as step.apic_update)."""
-    from jaxmpm import fields
-    from jaxmpm.constitutive import constitutive
+    from jaxmpm.stages import fields
+    from jaxmpm.stages.constitutive import constitutive
     from jaxmpm.step import _apply_bc, _mass_floor, body_acceleration
-    from jaxmpm.transfer import gather_by_offset, offset_stencil, scatter_by_offset
+    from jaxmpm.numerics.transfer import gather_by_offset, offset_stencil, scatter_by_offset
 
     d, h = lay.dim, lay.scene.grid.h
     dinv = 4.0 / h**2
@@ -109,7 +109,7 @@ def offset_apic_update(lay, params, state, dt):
 
 def programs(dim, n_grid, steps):
     import jaxmpm
-    from jaxmpm.step import Layout
+    from jaxmpm.stages.layout import Layout
 
     scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim)
     params = jaxmpm.default_params(scene)

@@ -46,9 +46,9 @@ def field_masks(n, groups):
 
 def case(n, groups, seed=0):
     """Inputs and both forms of the operator for one grouping of the blocks into fields."""
-    from jaxmpm import ddmp
-    from jaxmpm.scene import Grid
-    from jaxmpm.state import stencil_offsets
+    from jaxmpm.numerics import ddmp
+    from jaxmpm.model.scene import Grid
+    from jaxmpm.numerics.shapes import stencil_offsets
 
     d = 2
     grid = Grid(cells=(n, n), h=1.0 / n)

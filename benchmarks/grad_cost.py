@@ -45,7 +45,7 @@ def problem(n_steps):
     scene = jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2, t_end=n_steps * dt)
     params = jaxmpm.default_params(scene)
     state = jaxmpm.init_state(scene, params)
-    sl = jaxmpm.state.phase_slices(scene)[0]
+    sl = jaxmpm.model.state.phase_slices(scene)[0]
 
     def loss(theta, checkpoint):
         p = dataclasses.replace(params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))

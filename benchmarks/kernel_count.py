@@ -164,7 +164,7 @@ def count_step(scheme: str, dim: int, n_grid: int, form: str) -> dict:
     import jax.numpy as jnp
 
     import jaxmpm
-    from jaxmpm.forms import transfer_forms
+    from jaxmpm.numerics.forms import transfer_forms
 
     shape, transfer = SCHEMES[scheme]
     scene = jaxmpm.load_scene("mpm88", n_grid=n_grid, dim=dim, ppc_scale=1e-9)  # 1 particle per cell

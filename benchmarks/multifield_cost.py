@@ -32,7 +32,7 @@ def scene_for(n_fields, n_grid, continuity="auto", window=False):
     """The scene; window=True: with each field's DDMP operators on a block of cells that holds the
     largest field's initial extent plus 4 cells on each side."""
     import jaxmpm
-    from jaxmpm.scene import Box, Grid, Phase, Scene
+    from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
     mat = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.33)
     groups = {1: (0, 0, 0), 2: (0, 1, 1), 3: (0, 1, 2)}[n_fields]
@@ -51,7 +51,7 @@ def scene_for(n_fields, n_grid, continuity="auto", window=False):
     )
     if window:
         x = jaxmpm.init_state(scene, jaxmpm.default_params(scene)).x
-        scene = dataclasses.replace(scene, window=jaxmpm.ddmp.fitting_window(scene, x, margin=4))
+        scene = dataclasses.replace(scene, window=jaxmpm.numerics.ddmp.fitting_window(scene, x, margin=4))
     return scene
 
 

@@ -181,7 +181,7 @@ def run_jaxmpm(name: str, dim: int, n_grid: int, steps: int, repeats: int, ppc: 
     from jaxmpm import distributed
 
     shape, transfer, flag = JAXMPM[name]
-    from jaxmpm.forms import transfer_form
+    from jaxmpm.numerics.forms import transfer_form
 
     scene = dataclasses.replace(mpm88_scene(n_grid, dim, ppc), shape=shape, transfer=transfer)
     params = jaxmpm.default_params(scene)  # float32 (x64 stays off)
@@ -457,7 +457,7 @@ def main(argv=None):
     if a.one_count:
         print(
             len(
-                __import__("jaxmpm.state", fromlist=["sample_phase"]).sample_phase(
+                __import__("jaxmpm.model.sampling", fromlist=["sample_phase"]).sample_phase(
                     *(lambda s: (s.grid, s.phases[0]))(mpm88_scene(a.n_grid, a.dim, a.ppc))
                 )
             )

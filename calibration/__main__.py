@@ -11,10 +11,17 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
+import optax
 
-from calibration import data
-from jaxmpm.compile import jit
+import jaxmpm
+from calibration import data, plots
+from calibration import fit as F
+from calibration.model import CloudModel, theta_of
+from calibration import synthetic
+from jaxmpm.run import compile_cache
+from jaxmpm.numerics.compile import jit
 
 SEED_CH = (0.02, 0.15, 0.5, 1.0)
 
@@ -93,8 +100,6 @@ def _check_scene(args, fields):
     _positive(args.resolution, "--resolution")
     if not (args.step_safety >= 1 and args.step_safety < np.inf):
         raise ValueError(f"--step-safety {args.step_safety} is invalid: allowed a finite number >= 1")
-    import jaxmpm
-
     try:
         jaxmpm.load_scene(
             "debris_cloud",
@@ -125,10 +130,6 @@ def _measurements(path):
 
 
 def _versions():
-    import jax
-    import optax
-
-    import jaxmpm
 
     return {
         "python": platform.python_version(),
@@ -141,12 +142,8 @@ def _versions():
 
 
 def _setup(args):
-    import jax
-
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
-    from calibration.model import CloudModel
-
     return CloudModel.build(
         resolution=args.resolution,
         fields=args.fields,
@@ -158,8 +155,6 @@ def _setup(args):
 
 
 def cmd_table(args) -> int:
-    from calibration import plots
-
     values = _values(args.c_h, "--c-h")
     _positive(args.drag, "--drag", " (C_d)")
     _check_scene(args, fields=(1, 2))
@@ -217,10 +212,6 @@ def format_table(rows) -> str:
 
 
 def cmd_fit(args) -> int:
-    from calibration import fit as F
-    from calibration import plots
-    from calibration.model import theta_of
-
     start = _pair(args.start, "--start")
     _iterations(args.iterations)
     if not (isinstance(args.starts, int) and args.starts >= 1):
@@ -367,17 +358,11 @@ def cmd_fit(args) -> int:
 def cmd_synthetic(args) -> int:
     """Synthetic recovery on the small two-phase scene of calibration.synthetic: observables
     generated at (C_d, C_h) = --truth, the fit started at --start, recovered values printed."""
-    import jax
-
     jax.config.update("jax_enable_x64", True)
-    from calibration import fit as F
-    from calibration.model import theta_of
-    from calibration.synthetic import DebrisInWaterModel
-
     truth, start = _pair(args.truth, "--truth"), _pair(args.start, "--start")
     _iterations(args.iterations)
     out = _new_folder(args.out)
-    model = DebrisInWaterModel.build()
+    model = synthetic.DebrisInWaterModel.build()
     print(
         f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
         f"truth C_d = {truth[0]:g}, C_h = {truth[1]:g}; start C_d = {start[0]:g}, C_h = {start[1]:g}",
@@ -542,8 +527,6 @@ def build_parser():
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if not args.no_cache:
-        from jaxmpm import compile_cache
-
         compile_cache.enable()  # before anything compiles: a second start reads the programs back
     try:
         return args.fn(args)

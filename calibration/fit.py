@@ -24,8 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from tqdm.auto import tqdm
 
-from jaxmpm.compile import jit
+from jaxmpm.numerics.compile import jit
 
 
 def loss_fn(velocities, target, weights=None):
@@ -184,8 +185,6 @@ def fit(
     result = FitResult(theta=np.asarray(theta), loss=np.inf, residuals=np.full(target.shape, np.nan), method=method)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=iterations, desc=f"fit ({method})", unit="it")
     start = time.perf_counter()
     result.stopped = f"iterations ({iterations})"

@@ -6,20 +6,20 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxmpm.io.files import atomic_write, check_new
+
 
 def _save(fig, path):
-    from jaxmpm.files import _atomic, check_new
-
     path = Path(path)
     check_new(path)
-    with _atomic(path) as tmp:
+    with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
     return path
 
 
 def ch_table(rows, path):
     """Feature velocity against C_h: jaxmpm and the seed as lines, the experiment as bands."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     fig = Figure(figsize=(9, 3.4), layout="constrained")
     axes = fig.subplots(1, 3, sharey=True)
@@ -39,7 +39,7 @@ def ch_table(rows, path):
 
 def fit_report(result, out):
     """loss history, residuals beside the seed's best, and the landscape (when computed)."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     out = Path(out)
     paths = []

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 
 import jaxmpm
 from jaxmpm.materials import library_material
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
 
 CELLS, H = 48, 0.25e-3  # 12 mm box
 J0, EPS_PS0, SPEED = 0.99, 0.05, 300.0
@@ -60,7 +60,7 @@ def debris_in_water(drag=1.0, c_h=0.15, t_end=4e-6) -> Scene:
 def fragmented_precompressed(scene, params, state):
     """The debris block at J0 (volume and F scaled; p = K0 (1 - J0) with K0 = rho0 c0^2 of the
     Mie-Grueneisen EOS, stress -p I) with plastic strain EPS_PS0, so alpha = 1 - tanh(EPS_PS0 / C_h)."""
-    sl = jaxmpm.state.phase_slices(scene)[0]
+    sl = jaxmpm.model.state.phase_slices(scene)[0]
     c = params.phases["debris"]
     p0 = c["rho0"] * c["c0"] ** 2 * (1 - J0)
     d = state.x.shape[1]
@@ -107,7 +107,7 @@ class DebrisInWaterModel:
     def observables(self, theta):
         """(3,) the observables of the module docstring at theta = (log C_d, log C_h). Differentiable."""
         f = self.final(theta)
-        sl = jaxmpm.state.phase_slices(self.scene)[0]
+        sl = jaxmpm.model.state.phase_slices(self.scene)[0]
         m, x, v = f.mass[sl], f.x[sl, 0], f.v[sl, 0]
         M = jnp.sum(m)
         xm = jnp.sum(m * x) / M

@@ -24,18 +24,43 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import numbers
 import os
+import signal
 import sys
 import textwrap
 import threading
 import time
 from pathlib import Path
 
+import jax
+
+import jaxmpm
+from jaxmpm import diagnostics, io
+from jaxmpm.run import compile_cache, restart
+from jaxmpm.io.files import remove_stale_temporaries
+from jaxmpm.io.plot import plot_run
+from jaxmpm.io.scenefile import parse_value
+from jaxmpm.materials.library import (
+    USED_TABLES,
+    constant_origins,
+    default_model,
+    known_keys,
+    library_table,
+    table_provenance,
+)
+from jaxmpm.materials.models import model_of
+from jaxmpm.model.memory import check_run_memory
+from jaxmpm.model.state import phase_slices
+from jaxmpm.run.driver import interrupt_on
+from jaxmpm.run.restart import dtype
+from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE, describe, initial_state
+from jaxmpm.scenes.options import builder_options
+from jaxmpm.version import __version__
+
 
 def _pairs(items, flag: str) -> dict:
     """{'key': value} from ['key=value', ...]; values parsed as TOML (numbers, lists, strings)."""
-    from jaxmpm.scenefile import parse_value
-
     out = {}
     for item in items or ():
         key, sep, value = item.partition("=")
@@ -52,10 +77,6 @@ def _pairs(items, flag: str) -> dict:
 
 def _load(name: str, overrides: dict, options: dict):
     """The scene `name` (built-in or .toml) with builder options and --set overrides applied."""
-    import jaxmpm
-    from jaxmpm.scenefile import builder_options
-    from jaxmpm.scenes import BUILTINS
-
     if options and name in BUILTINS:
         parameters = builder_options(BUILTINS[name].build)
         allowed = list(parameters)
@@ -68,7 +89,6 @@ def _load(name: str, overrides: dict, options: dict):
 
 def _check_option_type(name: str, value, default) -> None:
     """A builder option must be of its default's kind: a number for a number, a string for a string."""
-    import numbers
 
     def number(x):
         return isinstance(x, numbers.Real) and not isinstance(x, bool)
@@ -104,8 +124,6 @@ def _resume_file(where: str) -> Path:
 def _check_run_args(args) -> None:
     """What `run` can check before anything is loaded: --resume continues the saved run as it was
     (its scene, t_end, outputs and settings), and --out names a folder."""
-    from jaxmpm.scenes import DEFAULT_SCENE
-
     if args.resume:
         given = [
             flag
@@ -155,9 +173,6 @@ def _new_folders(out: Path) -> list[Path]:
 def _sigterm_interrupts():
     """SIGTERM handled as Ctrl-C during `run` (on the main thread): the run stops after its chunk
     with its restart file saved, and `finally` blocks delete temporary files."""
-    import signal
-
-    from jaxmpm.simulate import interrupt_on
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -171,16 +186,12 @@ def _sigterm_interrupts():
 
 def _stopped(e: KeyboardInterrupt, what: str) -> int:
     """Print `what` after the signal that stopped the run; its exit status (128 + the signal)."""
-    import signal
-
     signum = getattr(e, "signum", signal.SIGINT)
     print(f"\n{'interrupted' if signum == signal.SIGINT else 'terminated'}: {what}", file=sys.stderr)
     return 128 + int(signum)
 
 
 def _remove_stale_temporaries(out: Path) -> None:
-    from jaxmpm.files import remove_stale_temporaries
-
     gone = remove_stale_temporaries(out)
     if gone:
         print(
@@ -213,24 +224,14 @@ def cmd_run(args) -> int:
 
 
 def _run(args) -> int:
-    import jax
-
     if args.resume:
         path = _resume_file(args.resume)
-        from jaxmpm.restart import dtype  # names the file if it is not a complete restart file
-
         if dtype(path) == "float64":
             args.x64 = True
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     if not args.no_cache:
-        from jaxmpm import compile_cache
-
         compile_cache.enable()
-    import jaxmpm
-    from jaxmpm import diagnostics, io, restart
-    from jaxmpm.scenes import initial_state
-
     if args.restart_every < 0:
         raise ValueError(
             f"--restart-every {args.restart_every} is invalid: allowed an integer >= 0 (0: no restart file)"
@@ -325,8 +326,6 @@ def _run(args) -> int:
     wall = time.perf_counter() - wall
     end = diagnostics.summary(scene, params, final)
     io.write(h5, scene, history, params=params, overwrite=args.overwrite)
-    from jaxmpm.plot import plot_run
-
     plot_run(scene, history, png, field=args.plot_field, params=params, overwrite=args.overwrite)
     print(f"done in {wall:.3g} s wall time (compilation included)")
     w = 26
@@ -347,18 +346,13 @@ def _run(args) -> int:
 
 def _check_size(scene, n_out: int, x64: bool) -> None:
     """Before the particles' state is made: refuse a run whose history and grid cannot fit in memory
-    (jaxmpm.planning.check_run_memory; the particles are counted from the scene's sampling)."""
-    from jaxmpm.planning import check_run_memory
-    from jaxmpm.state import phase_slices
-
+    (jaxmpm.run.planning.check_run_memory; the particles are counted from the scene's sampling)."""
     check_run_memory(scene, phase_slices(scene)[-1].stop, n_out, 8 if x64 else 4)
 
 
 def cmd_scenes(args) -> int:
     """`jaxmpm scenes [NAME] [--verbose]`: the built-in scenes; with NAME or --verbose, every builder
     option with its default and allowed values (jaxmpm.scenes.options, the table the builders check)."""
-    from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE
-
     if args.name is not None and args.name not in BUILTINS:
         raise ValueError(f"scene {args.name!r} is not a built-in scene: allowed {' | '.join(BUILTINS)}")
     names = [args.name] if args.name is not None else list(BUILTINS)
@@ -377,8 +371,6 @@ def cmd_scenes(args) -> int:
 
 def format_scene_options(name: str) -> str:
     """The builder options of the built-in scene `name`, one a line: name, default, allowed values."""
-    from jaxmpm.scenes.options import describe
-
     rows = describe(name)
     w = max(len(k) for k, _, _ in rows)
     d = max(len(repr(v)) for _, v, _ in rows)
@@ -387,16 +379,6 @@ def format_scene_options(name: str) -> str:
 
 
 def cmd_materials(args) -> int:
-    from jaxmpm.materials.library import (
-        USED_TABLES,
-        constant_origins,
-        default_model,
-        known_keys,
-        library_table,
-        table_provenance,
-    )
-    from jaxmpm.materials.models import model_of
-
     if args.key is None and args.model is not None:
         raise ValueError(f"--model {args.model} needs a library key: jaxmpm materials KEY --model {args.model}")
     if args.key is None:
@@ -444,12 +426,8 @@ def cmd_materials(args) -> int:
 
 
 def cmd_show(args) -> int:
-    from jaxmpm import io
-
     print(io.summary(args.file))
     if args.png:
-        import jax
-
         scene, history = io.read(args.file)
         last = jax.tree.map(lambda a: None if a is None else a[-1], history)
         print(f"wrote: {io.plot_state(scene, last, args.png, overwrite=args.overwrite)}")
@@ -457,9 +435,6 @@ def cmd_show(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from jaxmpm.scenes import DEFAULT_SCENE
-
-    from jaxmpm import __version__
 
     parser = argparse.ArgumentParser(prog="jaxmpm", description="Differentiable multiphase MPM in JAX.")
     parser.add_argument("--version", action="version", version=f"jaxmpm {__version__}")

@@ -8,7 +8,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxmpm.materials.models import model_of
-from jaxmpm.state import phase_slices
+from jaxmpm.model.state import particle_fields, phase_slices
+from jaxmpm.numerics.ddmp import node_support
+from jaxmpm.numerics.shapes import linear_stencil
+from jaxmpm.numerics.transfer import scatter_weighted
 
 
 def total_mass(state):
@@ -89,11 +92,6 @@ def summary(scene, params, state) -> dict:
 def volume_fractions(scene, state):
     """Nodal volume fractions theta_nk = sum_{p in k} V_p S_np / V_n of every velocity field,
     (K, *nodes), and their sum Theta = sum_k theta_k, (*nodes,) (E7 asks Theta = 1 in a mixture)."""
-    from jaxmpm.ddmp import node_support
-    from jaxmpm.shapes import linear_stencil
-    from jaxmpm.state import particle_fields
-    from jaxmpm.transfer import scatter_weighted
-
     grid = scene.grid
     K = scene.n_fields
     field = jnp.asarray(particle_fields(scene)) if K > 1 else None

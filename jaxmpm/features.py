@@ -22,10 +22,11 @@ the coarse debris cloud the soft velocities agree with the hard ones within 0.7%
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
-from jaxmpm.state import phase_slices
+from jaxmpm.model.state import phase_slices
 
 
 def soft_max(z, weight, width):
@@ -114,6 +115,4 @@ def feature_velocities(scene, history, first=0, **kw):
 
 
 def _at(history, k):
-    import jax
-
     return jax.tree.map(lambda a: a[k], history)

@@ -5,8 +5,8 @@ import jax
 import numpy as np
 
 import jaxmpm
-from jaxmpm.scene import Box, Grid, Phase, Scene
-from jaxmpm.state import phase_slices
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.state import phase_slices
 
 AL = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.0)
 PLATEAU = 2700.0 * (70e9 / 2700.0) ** 0.5 * 100.0  # rho c dv / 2, Pa: the exact contact stress (1.375 GPa)

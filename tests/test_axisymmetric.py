@@ -10,7 +10,7 @@ import pytest
 
 import jaxmpm
 from jaxmpm.materials import library_material
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene, Sphere
 
 
 def bessel_j(n, x):
@@ -118,7 +118,7 @@ def test_axis_holds_v_r_zero_and_a_sphere_on_a_plate_conserves_mass_and_axial_mo
     e1 = float(jaxmpm.diagnostics.kinetic_energy(final) + jaxmpm.diagnostics.internal_energy(final))
     assert abs(e1 / e0 - 1) < 0.01, e1 / e0 - 1
     assert float(final.eps_ps.max()) > 0.1  # it flowed plastically
-    lay = jaxmpm.step.Layout.of(scene)
+    lay = jaxmpm.stages.layout.Layout.of(scene)
     assert np.all(lay.bc_mask.reshape(scene.grid.nodes + (2,))[0, :, 0] == 0.0)
 
 
@@ -184,7 +184,7 @@ def test_axisymmetric_scene_file_round_trips_and_writes_per_radian_units(tmp_pat
         n_out=1,
         phases=(Phase("b", "m", Box((0.0, 0.1), (0.3, 0.3))),),
     )
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
     params = jaxmpm.default_params(scene)
     _, hist = jaxmpm.simulate(scene, params, jaxmpm.init_state(scene, params), progress=False)
     path, _ = jaxmpm.io.write(tmp_path / "run.h5", scene, hist, params)

@@ -15,7 +15,7 @@ import pytest
 
 import jaxmpm
 from jaxmpm import Boundary, Box, Grid, Material, Phase, Scene, Sphere
-from jaxmpm.scenefile import scene_from_toml
+from jaxmpm.io.scenefile import scene_from_toml
 from test_validation import SCENE_TOML
 
 M = Material.make("m", "hypoelastic", rho0=1000.0, E=1e6, nu=0.3)
@@ -835,9 +835,9 @@ def test_bad_input_gets_a_clear_error(kind, action, pattern):
 def test_particles_beyond_the_memory_are_refused_before_they_are_sampled(monkeypatch):
     """With 1 GiB available, a 2000^2 grid fits (0.5 GiB at 16 numbers per node) but 8 x 8 particles
     per cell over it (2.6e8 positions, 4.1 GiB) do not: the scene is refused before sampling."""
-    import jaxmpm.planning
+    import jaxmpm.model.memory
 
-    monkeypatch.setattr(jaxmpm.planning, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(jaxmpm.model.memory, "available_memory", lambda: 2**30)
     big = dict(grid=Grid(cells=(2000, 2000), h=1e-3))
     scene(**big, phases=(Phase("block", "m", Box((0.2, 0.2), (0.3, 0.3)), ppc=8),))  # a small body is sampled
     with pytest.raises(

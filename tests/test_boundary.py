@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
 
 MAT = jaxmpm.Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3)
 

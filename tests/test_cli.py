@@ -138,7 +138,7 @@ def test_run_bad_input_exits_2(tmp_path, capsys, argv, words):
 def test_run_refuses_an_out_it_cannot_write_in_before_simulating(tmp_path, capsys, monkeypatch):
     """A folder this user cannot write to (here: every new file there refused, as on a read-only
     disk; chmod would not stop a root user) is found before the run, not when it saves."""
-    import jaxmpm.files
+    import jaxmpm.io.files
 
     real_open = os.open
 
@@ -150,7 +150,7 @@ def test_run_refuses_an_out_it_cannot_write_in_before_simulating(tmp_path, capsy
     def no_simulation(*a, **k):
         raise AssertionError("simulated although --out cannot be written")
 
-    monkeypatch.setattr(jaxmpm.files.os, "open", refuse)
+    monkeypatch.setattr(jaxmpm.io.files.os, "open", refuse)
     monkeypatch.setattr(jaxmpm, "simulate", no_simulation)
     assert cli.main(["run", "--out", str(tmp_path / "ro"), "--no-progress", *TINY]) == 2
     err = capsys.readouterr().err

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import jaxmpm
-import jaxmpm.shapes
-import jaxmpm.transfer
-from jaxmpm.scene import Box, Grid, Phase, Scene
+import jaxmpm.numerics.shapes
+import jaxmpm.numerics.transfer
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
 ROCK = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)  # 1D: c = 1000 m/s
 P0 = 5.0e6
@@ -70,8 +70,8 @@ def test_fragmented_block_keeps_its_density_while_its_volume_fraction_falls():
     rho0, rho1 = s0.mass / s0.volume, final.mass / final.volume
     np.testing.assert_allclose(np.asarray(rho1), np.asarray(rho0), rtol=1e-9)
     theta = (
-        jaxmpm.transfer.scatter_weighted(
-            jaxmpm.shapes.stencil(scene, final.x), None, final.volume[:, None], 1, scene.grid.n_nodes
+        jaxmpm.numerics.transfer.scatter_weighted(
+            jaxmpm.numerics.shapes.stencil(scene, final.x), None, final.volume[:, None], 1, scene.grid.n_nodes
         )[0, :, 0]
         / scene.grid.h
     )
@@ -121,7 +121,7 @@ def test_fragmented_block_in_pressurised_gas_relaxes_to_the_gas_pressure(gas_fie
     )
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
-    sl = jaxmpm.state.phase_slices(scene)
+    sl = jaxmpm.model.state.phase_slices(scene)
     J = 1 - p_gas / K_gas
     F = s0.F.at[sl[1]].set(J)
     stress = s0.stress.at[sl[1]].set(-p_gas)
@@ -139,13 +139,13 @@ def test_e8_relaxation_rate_is_the_formula_with_its_strain_clipped_at_one_e_fold
     (1 - exp(-dt / tau)) / dt, by hand from the model's K and c; where |p - p_amb| / K exceeds
     EQUILIBRATING_STRAIN_MAX = 1 (here 7.5 either way, in vacuum) the strain is clipped to +-1,
     so the volume changes by at most one e-fold per relaxation time."""
-    from jaxmpm.constitutive import (
+    from jaxmpm.stages.constitutive import (
         EQUILIBRATING_STRAIN_MAX,
         bulk_modulus_and_wave_speed,
         closure_alpha,
         material_volume_rate,
     )
-    from jaxmpm.step import Layout
+    from jaxmpm.stages.layout import Layout
 
     scene = block(c_h=0.01)
     params, s = prepared(scene, 1.0, over_pressure)
@@ -371,12 +371,15 @@ def test_a_bar_pulled_in_tension_fragments_on_the_time_scale_c_h_sets():
         t_out = np.asarray(hist.t)
         x0 = np.asarray(s0.x[:, 0])
         mid = np.abs(x0 - 0.03) < 0.003
-        lay = jaxmpm.step.Layout.of(scene)
+        lay = jaxmpm.stages.layout.Layout.of(scene)
         frames = [jax.tree.map(lambda a: a[k], hist) for k in range(len(t_out))]
         p = np.array([np.asarray(f.pressure)[mid].mean() for f in frames])
         D = np.array([np.asarray(f.damage)[mid].mean() for f in frames])
         ap = np.array(
-            [np.asarray(jaxmpm.constitutive.pressure_factor(lay, params, f) * f.pressure)[mid].mean() for f in frames]
+            [
+                np.asarray(jaxmpm.stages.constitutive.pressure_factor(lay, params, f) * f.pressure)[mid].mean()
+                for f in frames
+            ]
         )
         ode = closure_ode(c_h, t_out)
         np.testing.assert_allclose(D, ode[:, 1], atol=0.005)  # measured <= 0.001

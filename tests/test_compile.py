@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.compile import native_reductions, native_reductions_forms
+from jaxmpm.numerics.compile import native_reductions, native_reductions_forms
 
 
 def _form_value(x):
@@ -18,7 +18,7 @@ def _form_value(x):
 
 
 @pytest.mark.skipif(
-    not jaxmpm.compile._USER_CONTEXTS,
+    not jaxmpm.numerics.compile._USER_CONTEXTS,
     reason="a jax without user contexts: jit compiles with XLA's defaults and traces no reduction form",
 )
 def test_caches_of_traces_tell_the_two_forms_apart():
@@ -32,7 +32,9 @@ def test_caches_of_traces_tell_the_two_forms_apart():
             assert float(one_jit(1.0)) == factor
             assert float(jax.jit(lambda x: checkpointed(x))(1.0)) == factor
     # staged by an eager grad (plain forms) after a trace inside jaxmpm.jit (reductions)
-    assert float(jaxmpm.jit(jax.grad(lambda x: staged(x)))(1.0)) == (2.0 if jaxmpm.compile.compiler_options() else 3.0)
+    assert float(jaxmpm.jit(jax.grad(lambda x: staged(x)))(1.0)) == (
+        2.0 if jaxmpm.numerics.compile.compiler_options() else 3.0
+    )
     assert float(jax.grad(lambda x: staged(x))(1.0)) == 3.0
 
 

@@ -9,7 +9,7 @@ import pytest
 
 import jaxmpm
 import jaxmpm.materials.elastic
-from jaxmpm.scene import Box, Grid, Phase, Scene, Sphere
+from jaxmpm.model.scene import Box, Grid, Phase, Scene, Sphere
 
 
 def _body(dim, shape, transfer="musl"):

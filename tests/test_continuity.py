@@ -2,7 +2,7 @@
 
 The fields resist overlapping: each phase takes its compressibility share of the volume that the
 fields' motion closes (the exact transpose of the interface forces with respect to the particle
-pressures, jaxmpm.multifield.continuity_volume_rate), so the interface forces' work is stored in the
+pressures, jaxmpm.stages.multifield.continuity_volume_rate), so the interface forces' work is stored in the
 phases' compression and given back, not created; the common pressure couples the fields in
 compression only, so bodies that rebound separate. Float64 (conftest)."""
 
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.scene import Box, Grid, Phase, Scene
-from jaxmpm.state import phase_slices
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.state import phase_slices
 
 from impact_blocks import run_blocks, two_blocks
 
@@ -119,10 +119,10 @@ def test_low_drag_impact_without_the_continuity_form_passes_through_or_gains_ene
 def test_continuity_volume_rate_is_the_transpose_of_the_interface_forces():
     """At a mid-impact state: sum_p p_p V_p D_p = sum_nk v_nk . I_nk (the interface forces' power
     is stored exactly), and with continuity = 'off' the step has no such term."""
-    from jaxmpm import multifield as M
-    from jaxmpm import nodal
+    from jaxmpm.stages import multifield as M
+    from jaxmpm.stages import nodal
     from jaxmpm import step as S
-    from jaxmpm.shapes import ddmp_beta, stencil
+    from jaxmpm.numerics.shapes import ddmp_beta, stencil
 
     scene = two_blocks(1.0, "transport", cells=100, t_end=30e-6, n_out=1)
     params = jaxmpm.default_params(scene)
@@ -168,7 +168,7 @@ def test_continuity_option_validation_and_default():
         ValueError, match=r"effects\.continuity = 'on' is invalid: allowed 'auto' \| 'off' \| 'transport'"
     ):
         settling_column("on")
-    back = jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(two_blocks(1.0, "off")))
+    back = jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(two_blocks(1.0, "off")))
     assert back.continuity == "off" and back == two_blocks(1.0, "off")
 
 
@@ -258,9 +258,10 @@ def test_pressure_parts_give_the_forces_of_the_isotropic_stress_parts(axisymmetr
     """The interface forces' narrow scatter (one DDMP share channel, nodal.pressure_parts, contracted
     by ddmp.nodal_interface_force) gives the nodal forces of the general stress parts of p I to
     round-off, plane and axisymmetric."""
-    from jaxmpm import ddmp, nodal
+    from jaxmpm.numerics import ddmp
+    from jaxmpm.stages import nodal
     from jaxmpm import step as S
-    from jaxmpm.shapes import ddmp_beta, stencil
+    from jaxmpm.numerics.shapes import ddmp_beta, stencil
 
     scene = (
         jaxmpm.load_scene("debris_cloud", resolution=0.75, fields=2)
@@ -296,7 +297,7 @@ def test_contact_onset_is_max_outside_its_band_and_smooth_inside():
     both ends of the band (a bare max(p, 0) has a unit step in its derivative at 0), derivative 1
     at p = 0, a tension of at most 0.26 p_on inside, and the energy identity's defect
     p s'(p) - s(p) within the docstring's 0.64 p_on."""
-    from jaxmpm.multifield import contact_onset
+    from jaxmpm.stages.multifield import contact_onset
 
     p_on = 1e3
     p = jnp.array([-5e3, -1e3, 0.0, 1.0, 2e3, 1e9])

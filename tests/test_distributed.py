@@ -14,13 +14,13 @@ import pytest
 
 import jaxmpm
 from jaxmpm import distributed
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
 TWO_DEVICE_SCRIPT = r"""
 import dataclasses, jax, jax.numpy as jnp, numpy as np
 import jaxmpm
 from jaxmpm import distributed
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 assert len(jax.devices()) == 2, jax.devices()
 mesh = distributed.particle_mesh()
 
@@ -64,7 +64,7 @@ same(two, one, "debris cloud")
 # one field with the B-spline APIC step (offset-loop transfers), gravity, slip walls; an odd
 # particle count (filled up with one padding copy)
 scene = jaxmpm.load_scene("mpm88", n_grid=32)
-assert jaxmpm.state.phase_slices(scene)[0].stop % 2 == 1
+assert jaxmpm.model.state.phase_slices(scene)[0].stop % 2 == 1
 params = jaxmpm.default_params(scene)
 s0 = jaxmpm.init_state(scene, params)
 n = 50
@@ -154,7 +154,7 @@ assert jax.process_count() == 2 and len(jax.devices()) == 2 and len(jax.local_de
 import numpy as np
 import jaxmpm
 from jaxmpm import distributed
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 mesh = distributed.particle_mesh()
 results = {}
 # the two-field debris cloud on the host driver (CFL step, two outputs): every multi-field stage
@@ -284,7 +284,7 @@ def test_shard_order_gives_each_device_a_part_of_every_phase_and_inverts(shards)
     """Each device's block: ceil(n / shards) particles of each phase, phase after phase; the
     copies that fill a phase up are marked and dropped on the way back."""
     scene = two_blocks()
-    counts = [sl.stop - sl.start for sl in jaxmpm.state.phase_slices(scene)]
+    counts = [sl.stop - sl.start for sl in jaxmpm.model.state.phase_slices(scene)]
     order, pad = distributed.shard_order(scene, shards)
     c = [-(-n // shards) for n in counts]
     assert len(order) == shards * sum(c) and pad.sum() == shards * sum(c) - sum(counts)

@@ -10,7 +10,7 @@ import pytest
 
 import jaxmpm
 from jaxmpm import diagnostics
-from jaxmpm.fields import drag_heat, drag_rows, exchange, field_pairs
+from jaxmpm.stages.fields import drag_heat, drag_rows, exchange, field_pairs
 from impact_blocks import two_blocks
 
 jax.config.update("jax_enable_x64", True)
@@ -139,7 +139,7 @@ def test_drag_heating_round_trips_through_a_scene_file():
     scene = dataclasses.replace(two_blocks(1.0, "auto"), drag_heating=True)
     text = jaxmpm.scene_to_toml(scene)
     assert "drag_heating = true" in text
-    assert jaxmpm.scenefile.scene_from_toml(text) == scene
+    assert jaxmpm.io.scenefile.scene_from_toml(text) == scene
     assert "drag_heating" not in jaxmpm.scene_to_toml(two_blocks(1.0, "auto"))
 
 

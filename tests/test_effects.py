@@ -7,7 +7,7 @@ import jax
 import pytest
 
 import jaxmpm
-from jaxmpm.scene import Boundary
+from jaxmpm.model.scene import Boundary
 from jaxmpm.step import STAGE_PARTS, STAGES
 
 

@@ -15,10 +15,11 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 import jaxmpm  # noqa: E402 (after float64 is on)
-from jaxmpm import fields, shapes, transfer  # noqa: E402
+from jaxmpm.numerics import shapes, transfer  # noqa: E402
+from jaxmpm.stages import fields  # noqa: E402
 from jaxmpm.materials import library_material, model_of  # noqa: E402
 from jaxmpm.materials.hydro import eos_coefficients  # noqa: E402
-from jaxmpm.scene import Grid  # noqa: E402
+from jaxmpm.model.scene import Grid  # noqa: E402
 
 from test_material_models import drive, pulse_speed  # noqa: E402
 
@@ -92,10 +93,11 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
     hold no other phase."""
     import dataclasses
 
-    from jaxmpm.multifield import ambient_pressure_by_phase
-    from jaxmpm.scene import Box, Phase, Scene
-    from jaxmpm.shapes import ddmp_beta, stencil
-    from jaxmpm.step import Layout, _mass_floor, grid_acceleration, particle_to_grid
+    from jaxmpm.stages.multifield import ambient_pressure_by_phase
+    from jaxmpm.model.scene import Box, Phase, Scene
+    from jaxmpm.numerics.shapes import ddmp_beta, stencil
+    from jaxmpm.stages.layout import Layout
+    from jaxmpm.step import _mass_floor, grid_acceleration, particle_to_grid
 
     rock = jaxmpm.Material.make("rock", "hypoelastic", rho0=2000.0, E=2.0e9, nu=0.25)
     gas = jaxmpm.Material.make("gas", "linear_fluid", rho0=10.0, K=1.0e7)
@@ -144,7 +146,7 @@ def test_e8_ambient_pressure_does_not_depend_on_how_the_phases_are_grouped_into_
     scale = float(jnp.max(jnp.abs(p)))
     for name, amb in by_phase.items():
         np.testing.assert_allclose(np.asarray(amb), by_field, rtol=0, atol=1e-12 * scale, err_msg=name)
-    rock_sl = jaxmpm.state.phase_slices(three)[0]
+    rock_sl = jaxmpm.model.state.phase_slices(three)[0]
     x, y = np.asarray(s.x[rock_sl]).T
     amb = by_field[rock_sl]
     alone = (x > 0.6) & (y < 0.4)  # nodes x >= 0.6, y <= 0.4: no gas, no water there

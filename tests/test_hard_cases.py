@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene, Sphere
 
 WALLS = Boundary(faces=tuple((f"{a}_{s}", "slip") for a in "xy" for s in ("lo", "hi")))
 STEEL = jaxmpm.Material.make("steel", "hypoelastic", rho0=7830.0, E=200e9, nu=0.29)
@@ -65,7 +65,7 @@ def test_impact_at_6_7_km_per_s():
         jnp.asarray(6700.0),
         lambda p, s, v: (
             p,
-            dataclasses.replace(s, v=s.v.at[jaxmpm.state.phase_slices(scene)[0]].set(jnp.stack([0.0 * v, -v]))),
+            dataclasses.replace(s, v=s.v.at[jaxmpm.model.state.phase_slices(scene)[0]].set(jnp.stack([0.0 * v, -v]))),
         ),
     )
     print(f"6.7 km/s: energy {e1 / e0 - 1:+.3%}")
@@ -193,7 +193,7 @@ def test_a_phase_with_zero_volume_fraction_at_nodes():
     s0 = jaxmpm.init_state(scene, params)
     n = jaxmpm.plan_steps(scene, params, s0, scene.t_end)
     check(scene, params, s0, n, jnp.asarray(1.0), lambda p, s, c: (dataclasses.replace(p, drag_coefficient=c), s))
-    slug = jaxmpm.state.phase_slices(scene)[0]
+    slug = jaxmpm.model.state.phase_slices(scene)[0]
     assert float(check.final.x[slug, 0].max()) > 0.016  # the slug went into the gas
 
 

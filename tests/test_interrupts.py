@@ -168,7 +168,7 @@ def test_sigint_inside_simulate_stops_after_the_chunk_with_the_file_saved(tmp_pa
     """In Python: a SIGINT that arrives during a save is deferred to the end of the chunk; then the
     run saves and raises Interrupted (a KeyboardInterrupt), and resuming gives the uninterrupted
     run's results bit for bit."""
-    from jaxmpm.simulate import Interrupted
+    from jaxmpm.run.driver import Interrupted
 
     scene, params, s0 = _small(t_end=1.5, n_out=6)
     full, hist_full = jaxmpm.simulate(scene, params, s0, progress=False, chunk=7)

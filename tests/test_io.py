@@ -14,7 +14,7 @@ import pytest  # noqa: E402
 
 import jaxmpm  # noqa: E402
 from jaxmpm import io  # noqa: E402
-from jaxmpm.state import phase_slices  # noqa: E402
+from jaxmpm.model.state import phase_slices  # noqa: E402
 
 
 @pytest.fixture(scope="module")

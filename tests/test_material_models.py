@@ -12,8 +12,8 @@ import pytest
 import jaxmpm
 from jaxmpm.materials import MatPoint, library_material, model_of
 from jaxmpm.materials.library import library_table
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
-from jaxmpm.state import phase_slices
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
+from jaxmpm.model.state import phase_slices
 
 from riemann import sample, star_state
 
@@ -549,11 +549,11 @@ name = "plate"
 material = "soft_al"
 geometry = { type = "box", lo = [0.0], hi = [0.02] }
 """
-    scene = jaxmpm.scenefile.scene_from_toml(text)
+    scene = jaxmpm.io.scenefile.scene_from_toml(text)
     m = scene.material(scene.phases[0])
     assert m.model == "mie_gruneisen+johnson_cook" and dict(m.constants)["A"] == 1.0e8
     assert dict(m.constants)["B"] == 426.0e6
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scenefile.scene_to_toml(scene)) == scene
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.io.scenefile.scene_to_toml(scene)) == scene
 
 
 @pytest.mark.parametrize(
@@ -772,7 +772,7 @@ def test_plane_strain_impact_with_the_full_library_model_and_the_closure(fragmen
     np.testing.assert_allclose(p1, p0, rtol=0, atol=1e-12 * np.abs(p0).max())
     for k in range(len(hist.t)):
         assert energy(jax.tree.map(lambda a: a[k], hist)) == pytest.approx(energy(s0), rel=0.01)
-    alpha = np.asarray(jaxmpm.constitutive.closure_alpha(jaxmpm.step.Layout.of(scene), params, final))
+    alpha = np.asarray(jaxmpm.stages.constitutive.closure_alpha(jaxmpm.stages.layout.Layout.of(scene), params, final))
     eps, damage = np.asarray(final.eps_ps), np.asarray(final.damage)
     assert eps.max() > 0.5
     print(
@@ -831,8 +831,8 @@ def test_mie_gruneisen_in_strong_expansion_tends_to_the_gas_limit():
 def test_failed_material_has_no_shear_wave_speed():
     """A failed particle (damage 1) moves sound at the bulk speed sqrt(K / rho); an intact one
     adds 4 G / (3 rho)."""
-    from jaxmpm.constitutive import bulk_modulus_and_wave_speed
-    from jaxmpm.step import Layout
+    from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed
+    from jaxmpm.stages.layout import Layout
 
     scene = Scene(
         name="bar",

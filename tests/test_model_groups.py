@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.constitutive import bulk_modulus_and_wave_speed, constitutive, model_groups
+from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, constitutive, model_groups
 from jaxmpm.materials import MatPoint, library_material, model_of
-from jaxmpm.scene import Box, Grid, Phase, Scene
-from jaxmpm.step import Layout
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
+from jaxmpm.stages.layout import Layout
 
 jax.config.update("jax_enable_x64", True)
 
@@ -54,7 +54,7 @@ def per_phase_reference(lay, params, state, L, dt):
     mp = MatPoint(
         state.F,
         state.stress,
-        jaxmpm.constitutive.pressure(lay, state),
+        jaxmpm.stages.constitutive.pressure(lay, state),
         state.energy,
         state.eps_ps,
         state.damage,

@@ -9,7 +9,7 @@ import pytest
 
 import jaxmpm
 import jaxmpm.materials.elastic
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
 HEAVY = jaxmpm.Material.make("heavy", "linear_fluid", rho0=1000.0, K=1000.0)
 LIGHT = jaxmpm.Material.make("light", "linear_fluid", rho0=1.0, K=1.0)
@@ -49,7 +49,7 @@ def rate_constants(scene, params):
 
 
 def relative_velocity(scene, state):
-    sl = jaxmpm.state.phase_slices(scene)
+    sl = jaxmpm.model.state.phase_slices(scene)
     return np.asarray(jnp.mean(state.v[sl[1], 0]) - jnp.mean(state.v[sl[0], 0]))
 
 
@@ -74,7 +74,7 @@ def test_drag_relaxation_matches_exact_first_order_momentum_exact(kind):
         errs.append(np.max(np.abs(dv - exact)) / dv0)
         np.testing.assert_allclose(p1, p0, rtol=0, atol=1e-12 * abs(p0).max())
         # uniform up to the edge nodes, where the particles' shift (1% of a cell) changes theta
-        for sl in jaxmpm.state.phase_slices(scene):
+        for sl in jaxmpm.model.state.phase_slices(scene):
             assert float(jnp.std(hist.v[-1, sl, 0])) < 1e-3 * dv0
     assert exact[-1] < 0.3 * dv0  # it relaxed substantially
     print(f"{kind} drag: max relative errors at dt = 0.02, 0.01, 0.005 s: {errs}")
@@ -125,7 +125,7 @@ def test_phase_alone_in_its_field_behaves_as_one_field_mpm():
         scene = _expanding_block(two)
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
-        blk = jaxmpm.state.phase_slices(scene)[0]
+        blk = jaxmpm.model.state.phase_slices(scene)[0]
         F = s0.F.at[blk].multiply(0.98)  # the block is pre-compressed: it expands into the void
         s0 = dataclasses.replace(
             s0, F=F, stress=jaxmpm.materials.elastic.linear_elastic_stress(params.phases["block"], F)
@@ -198,7 +198,7 @@ def test_grad_wrt_drag_coefficient_matches_central_difference():
     scene = mixture(drag=1000.0)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
-    sl = jaxmpm.state.phase_slices(scene)
+    sl = jaxmpm.model.state.phase_slices(scene)
 
     def light_speed(cd):
         p = dataclasses.replace(params, drag_coefficient=cd)
@@ -281,7 +281,7 @@ def test_glued_bar_in_two_fields_matches_one_field(continuity):
 
 
 def test_small_solver_matches_lapack():
-    from jaxmpm.fields import solve_small
+    from jaxmpm.stages.fields import solve_small
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 4):
@@ -294,7 +294,7 @@ def test_small_solver_matches_lapack():
 
 
 def test_three_field_exchange_conserves_momentum_and_reduces_to_two_fields():
-    from jaxmpm.fields import drag_matrix, exchange
+    from jaxmpm.stages.fields import drag_matrix, exchange
 
     rng = np.random.default_rng(1)
     n, d, dt = 7, 2, 1e-3
@@ -346,7 +346,7 @@ def test_three_field_impact_conserves_momentum_and_vmaps_over_the_drag():
     momentum = lambda s, sl=slice(None): np.asarray((s.mass[sl, None] * s.v[sl]).sum(0))
     cds = jnp.array([1e2, 1e4])
     batch = jax.jit(jax.vmap(run))(cds)
-    striker = jaxmpm.state.phase_slices(scene)[0]
+    striker = jaxmpm.model.state.phase_slices(scene)[0]
     p0 = momentum(s0)
     for i, cd in enumerate(cds):
         single = run(cd)
@@ -445,14 +445,14 @@ def test_a_field_left_out_of_the_common_pressure_moves_as_if_alone_without_drag(
         )
         out.append((s0, jaxmpm.simulate(scene, params, s0, dt=dt, n_steps=40, t_end=40 * dt, n_out=1)[0]))
     (s0, f3), (_, f1) = out
-    cl = jaxmpm.state.phase_slices(three)[2]
+    cl = jaxmpm.model.state.phase_slices(three)[2]
     assert float(jnp.max(jnp.abs(f1.x - jaxmpm.init_state(alone, jaxmpm.default_params(alone)).x))) > 1e-4
     np.testing.assert_allclose(np.asarray(f3.x[cl]), np.asarray(f1.x), rtol=0, atol=1e-13)
     np.testing.assert_allclose(np.asarray(f3.v[cl]), np.asarray(f1.v), rtol=0, atol=1e-11)
     p = lambda s: np.asarray((s.mass[:, None] * s.v).sum(0))
     np.testing.assert_allclose(p(f3), p(s0), rtol=0, atol=1e-12 * float(jnp.abs(s0.mass[:, None] * s0.v).sum()))
     assert three.pressure_fields == (0, 1)
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(three)) == three
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(three)) == three
     for bad in ((0,), (0, 3), ("a", 1)):
         with pytest.raises(
             ValueError,
@@ -540,7 +540,7 @@ def push_water(continuity, shape):
         scene = gas_and_water(two, continuity, shape)
         params = jaxmpm.default_params(scene)
         s0 = jaxmpm.init_state(scene, params)
-        gas_sl, water_sl = jaxmpm.state.phase_slices(scene)
+        gas_sl, water_sl = jaxmpm.model.state.phase_slices(scene)
         J = 1 - p_gas / K_gas
         s0 = dataclasses.replace(
             s0,

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.scene import Boundary, Box, Grid, Phase, Scene
-from jaxmpm.shapes import stencil
-from jaxmpm.step import Layout, _apply_bc, particle_velocity_gradient
-from jaxmpm.transfer import scatter_weighted
+from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
+from jaxmpm.numerics.shapes import stencil
+from jaxmpm.stages.layout import Layout
+from jaxmpm.step import _apply_bc, particle_velocity_gradient
+from jaxmpm.numerics.transfer import scatter_weighted
 
 
 def _scene(dim, shape, wall):

@@ -236,7 +236,7 @@ def test_load_checks_shapes_and_dtypes_against_the_scene(small, tmp_path):
     # the scene text edited to a larger body: the saved state has fewer particles than it samples
     path = _saved(small, tmp_path / "s.restart.h5")
     finer = jaxmpm.load_scene("elastic_impact", resolution=0.5)
-    n, n_fine = s0.x.shape[0], jaxmpm.state.phase_slices(finer)[-1].stop
+    n, n_fine = s0.x.shape[0], jaxmpm.model.state.phase_slices(finer)[-1].stop
     with h5py.File(path, "r+") as f:
         del f["scene"]
         f["scene"] = jaxmpm.scene_to_toml(finer)

@@ -16,7 +16,7 @@ from jaxmpm.scenes.penetration import (
     tate_penetration_speed,
     tate_strengths,
 )
-from jaxmpm.state import phase_slices
+from jaxmpm.model.state import phase_slices
 
 
 @functools.lru_cache(maxsize=8)

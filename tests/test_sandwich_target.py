@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.state import phase_slices
+from jaxmpm.model.state import phase_slices
 
 
 @pytest.mark.slow

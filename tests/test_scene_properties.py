@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import jaxmpm
-from jaxmpm.scenefile import scene_from_dict, scene_from_toml
+from jaxmpm.io.scenefile import scene_from_dict, scene_from_toml
 
 BASE = {
     "name": "prop",
@@ -217,7 +217,7 @@ def test_random_valid_scenes_run_20_steps_finite(box, vel, E, nu, rho, shape, fi
     for name in ("a", "b"):
         params = params.with_constant(name, "E", E).with_constant(name, "nu", nu).with_constant(name, "rho0", rho)
     state = jaxmpm.init_state(scene, params)
-    sl = jaxmpm.state.phase_slices(scene)[0]
+    sl = jaxmpm.model.state.phase_slices(scene)[0]
     state = dataclasses.replace(state, v=state.v.at[sl].set(jnp.asarray(vel)))
     final = _run20(scene)(params, state)
     assert all(bool(jnp.all(jnp.isfinite(a))) for a in jax.tree.leaves(final))
@@ -256,7 +256,7 @@ def test_the_scene_file_format_documented_in_scenefile_loads_as_written():
     valid scene file, and every key its first paragraph lists is one the reader accepts."""
     import re
 
-    import jaxmpm.scenefile as sf
+    import jaxmpm.io.scenefile as sf
 
     example = "\n".join(
         line[4:] for line in sf.__doc__.splitlines() if line.startswith("    ") and not line.startswith("    {")

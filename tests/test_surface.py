@@ -11,9 +11,9 @@ import pytest
 
 import jaxmpm
 from jaxmpm import cli
-from jaxmpm.scenefile import builder_options
+from jaxmpm.scenes.options import builder_options
 from jaxmpm.scenes import BUILTINS
-from jaxmpm.scenes.options import describe
+from jaxmpm.scenes import describe
 
 
 def _floor(name):
@@ -48,7 +48,7 @@ def test_elastic_impact_at_resolution_0_01_is_refused_and_its_floor_gives_8_cell
 @pytest.mark.parametrize("dim, ppc_scale", [(2, 1.0), (2, 2.0), (2, 0.5), (3, 1.0)])
 def test_mpm88_has_one_n_grid_range_and_its_least_value_builds(dim, ppc_scale):
     """The one check of n_grid names the true least value: it builds, one below is refused naming it."""
-    from jaxmpm.scene import MAX_PPC
+    from jaxmpm.model.scene import MAX_PPC
     from jaxmpm.scenes.basic import mpm88_least_n_grid
 
     least = mpm88_least_n_grid(dim, ppc_scale)
@@ -164,7 +164,7 @@ def test_run_past_its_time_threshold_stops_after_the_first_chunk_unless_confirme
 
 
 def test_time_threshold_from_the_environment(monkeypatch):
-    from jaxmpm.planning import max_minutes
+    from jaxmpm.run.planning import max_minutes
 
     monkeypatch.setenv("JAXMPM_MAX_MINUTES", "2.5")
     assert max_minutes() == 2.5 and max_minutes(7) == 7.0
@@ -196,9 +196,9 @@ def test_endless_run_on_the_command_line_is_refused_with_its_plan_and_estimate(t
 
 
 def test_history_beyond_the_memory_is_refused_before_the_state_is_made(tmp_path, capsys, monkeypatch):
-    import jaxmpm.planning
+    import jaxmpm.model.memory
 
-    monkeypatch.setattr(jaxmpm.planning, "available_memory", lambda: 2**20)
+    monkeypatch.setattr(jaxmpm.model.memory, "available_memory", lambda: 2**20)
     code = cli.main(
         ["run", "--opt", "resolution=0.25", "--n-out", "100000", "--out", str(tmp_path / "o"), "--no-progress"]
     )
@@ -232,9 +232,9 @@ def test_gravity_that_moves_a_particle_more_than_a_cell_per_step_is_refused_befo
         r"\(h = 0\.0625 m\): allowed \|gravity\| <= h / dt\^2 = .* m/s\^2",
     ):
         jaxmpm.simulate(scene, params, state, progress=False)
-    dt = jaxmpm.planning.host_cfl_step(scene, params, state)
+    dt = jaxmpm.run.planning.host_cfl_step(scene, params, state)
     bound = scene.grid.h / dt**2
-    from jaxmpm.planning import acceleration_bound
+    from jaxmpm.run.planning import acceleration_bound
 
     ok = params.__class__(**{**params.__dict__, "gravity": params.gravity * 0 + jax_array([0.0, -0.99 * bound])})
     acceleration_bound(scene, ok, state)
@@ -292,7 +292,7 @@ def test_run_figure_has_snapshots_a_colorbar_and_an_energy_panel(brittle_run, fi
     """4 snapshot panels (all 4 outputs), a colorbar (a legend outside the panels for phases) and
     the energy panel, with kinetic, internal and total energy at every output; the narrow
     panels of the tall axisymmetric grid fill most of the figure's width."""
-    from jaxmpm.plot import run_figure
+    from jaxmpm.io.plot import run_figure
 
     scene, params, history = brittle_run
     fig = run_figure(scene, history, field, panels=4, params=params)
@@ -351,10 +351,10 @@ def test_state_plot_of_a_tall_grid_is_not_wider_than_its_panels_need(brittle_run
     wider than the panels' aspect asks (it was 13 x 9 in for two panels of 2.2 x 9 in)."""
     from PIL import Image
 
-    from jaxmpm.plot import plot_state
+    from jaxmpm.io.plot import plot_state
 
     scene, params, history = brittle_run
-    last = jaxmpm.plot.jax_tree_index(history, -1)
+    last = jaxmpm.io.plot.jax_tree_index(history, -1)
     png = plot_state(scene, last, tmp_path / "s.png")
     w, h = Image.open(png).size
     assert w < h

@@ -8,12 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmpm import ddmp
-from jaxmpm.compile import native_reductions_forms
-from jaxmpm.geometry import Grid
-from jaxmpm.shapes import bspline2_stencil, linear_stencil
-from jaxmpm.state import stencil_offsets
-from jaxmpm.transfer import (
+from jaxmpm.numerics import ddmp
+from jaxmpm.numerics.compile import native_reductions_forms
+from jaxmpm.model.geometry import Grid
+from jaxmpm.numerics.shapes import bspline2_stencil, linear_stencil
+from jaxmpm.numerics.shapes import stencil_offsets
+from jaxmpm.numerics.transfer import (
     gather,
     gather_by_offset,
     offset_stencil,
@@ -60,7 +60,7 @@ def random_ddmp_grid(rng, dim, K=2, axisymmetric=False):
 def test_add_corners_equals_shifted_sums(dim, form):
     """Both forms of the corner sums (jaxmpm/forms.py: a loop over the corners, one fused sum),
     values, gradients and a batched second derivative."""
-    from jaxmpm.forms import transfer_forms
+    from jaxmpm.numerics.forms import transfer_forms
 
     rng = np.random.default_rng(dim)
     cells = (3, 4, 2)[:dim]
@@ -281,7 +281,7 @@ def test_stencil_weights_keep_their_product_in_derivatives(dim, shape):
     reverse pass has no scatter (indexing the 1D weights by the stencil's offsets transposed to
     scatter-adds: the elastic impact's shape-function stage 0.32 -> 0.10 ms per step in its
     gradient's transpose)."""
-    from jaxmpm import shapes
+    from jaxmpm.numerics import shapes
 
     rng = np.random.default_rng(60 + dim)
     grid = Grid(cells=(4, 3, 2)[:dim], h=0.25, origin=(0.0,) * dim)
@@ -497,8 +497,8 @@ def _form_scene(case):
     from impact_blocks import two_blocks
 
     import jaxmpm
-    from jaxmpm.scene import Box, Phase, Scene
-    from jaxmpm.scene import Grid as SceneGrid
+    from jaxmpm.model.scene import Box, Phase, Scene
+    from jaxmpm.model.scene import Grid as SceneGrid
     from jaxmpm.scenes import basic, impact
 
     fluid = jaxmpm.Material.make("fluid", "linear_fluid", rho0=1.0, K=400.0)
@@ -541,7 +541,7 @@ def _steps_and_gradient(scene, form, n_steps=3):
     import dataclasses
 
     import jaxmpm
-    from jaxmpm.forms import transfer_forms
+    from jaxmpm.numerics.forms import transfer_forms
 
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.initial_state(scene, params)
@@ -608,7 +608,7 @@ def test_gpu_form_has_no_loop_over_offsets_or_corners():
     import os
 
     import jaxmpm
-    from jaxmpm.forms import ENV, transfer_form, transfer_forms
+    from jaxmpm.numerics.forms import ENV, transfer_form, transfer_forms
     from jaxmpm.scenes import basic
 
     for scene in (basic.mpm88(n_grid=8, ppc_scale=0.005), basic.elastic_impact(resolution=0.25)):

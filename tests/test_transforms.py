@@ -139,7 +139,7 @@ def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradien
     """checkpoint=True / "nested" (two-level checkpointing; 7 steps per output run as 3 chunks of 3,
     the last two steps padding), "steps" (each step recomputed from its stored input) and "auto"
     equal the plain scan: the same result and the same gradient to round-off."""
-    from jaxmpm.simulate import nested_sizes
+    from jaxmpm.run.driver import nested_sizes
 
     assert nested_sizes(7) == (3, 3) and nested_sizes(9) == (3, 3) and nested_sizes(1) == (1, 1)
     (a, ta), ga = jax.value_and_grad(_checkpointed_loss(small, mode), has_aux=True)(1000.0)
@@ -153,7 +153,7 @@ def test_checkpointing_gives_the_same_run_and_gradient(small, plain_scan_gradien
 def test_auto_checkpointing_stores_each_step_only_within_its_memory_budget(small, monkeypatch):
     """checkpoint="auto" is "steps" while n_steps stored States (times an ensemble's members) fit
     in AUTO_STEPS_BYTES, "nested" beyond; the other names map as documented."""
-    sim = importlib.import_module("jaxmpm.simulate")  # the module (jaxmpm.simulate is the function)
+    sim = importlib.import_module("jaxmpm.run.driver")  # the module (jaxmpm.simulate is the function)
 
     scene, params, state = small
     one = sim.state_bytes(state)
@@ -183,7 +183,7 @@ def test_a_default_gradient_stores_step_inputs_not_every_intermediate(small):
         return jax.jit(jax.grad(loss)).lower(1000.0).compile().memory_analysis().temp_size_in_bytes
 
     default, stored = temp_bytes(), temp_bytes(checkpoint=False)
-    states = 14 * importlib.import_module("jaxmpm.simulate").state_bytes(state)
+    states = 14 * importlib.import_module("jaxmpm.run.driver").state_bytes(state)
     assert states <= default < 0.25 * stored, (default, stored, states)
 
 
@@ -191,7 +191,7 @@ def test_jaxmpm_jit_turns_off_ynnpack_fusions_and_gives_the_same_step(small):
     """jaxmpm.jit compiles with XLA's YNNPACK fusions off on the CPU (jaxmpm/compile.py): the
     compiled program has none of them, and the step's result is jax.jit's to round-off."""
     scene, params, state = small
-    if jax.default_backend() != "cpu" or jaxmpm.compile.compiler_options() is None:
+    if jax.default_backend() != "cpu" or jaxmpm.numerics.compile.compiler_options() is None:
         pytest.skip("the option is for XLA's CPU backend, where this XLA knows it")
     step = jaxmpm.make_step(scene)
     fast, plain = jaxmpm.jit(step), jax.jit(step)
@@ -241,16 +241,16 @@ def _derivatives(small, kinds):
     ],
 )
 def test_marking_the_evolving_tangents_changes_no_derivative(small, monkeypatch, kinds):
-    """`jaxmpm.tangents.evolving_tangents` (used by simulate) gives the state's fields their tangents before the scans (so
+    """`jaxmpm.run.tangents.evolving_tangents` (used by simulate) gives the state's fields their tangents before the scans (so
     that JAX linearizes each scan's body once): every derivative equals the one without it, for
     derivatives with respect to parameters only, to the initial state and to dt (where t keeps its
     own tangent), in both modes and under vmap."""
-    sim = importlib.import_module("jaxmpm.simulate")
+    sim = importlib.import_module("jaxmpm.run.driver")
     marked = _derivatives(small, kinds)
     monkeypatch.setattr(sim, "evolving_tangents", lambda fixed_dt, state, inputs: state)
-    sim._fixed_fn.cache_clear()
+    sim.fixed_fn.cache_clear()
     plain = _derivatives(small, kinds)
-    sim._fixed_fn.cache_clear()
+    sim.fixed_fn.cache_clear()
     for key in plain:
         for m, p in zip(jax.tree.leaves(marked[key]), jax.tree.leaves(plain[key])):
             assert np.all(np.isfinite(np.asarray(p))) and np.any(np.asarray(p) != 0), key
@@ -276,11 +276,11 @@ def test_jaxmpm_jit_nested_in_another_jit_traces_its_function_once():
 
 
 def test_marked_tangents_carry_no_infinity_into_a_derivative(small):
-    """The zero that `jaxmpm.tangents.evolving_tangents` (used by simulate) adds to the state's tangents is selected, not a
+    """The zero that `jaxmpm.run.tangents.evolving_tangents` (used by simulate) adds to the state's tangents is selected, not a
     product with 0: an infinite cotangent of a field that does not depend on the parameter (here x,
     for a derivative with respect to E) leaves the derivative what it is, not NaN; so does an
     infinite input tangent in forward mode."""
-    sim = importlib.import_module("jaxmpm.simulate")
+    sim = importlib.import_module("jaxmpm.run.driver")
     _, params, state = small
     marked_x = lambda E: sim.evolving_tangents(False, state, (E,)).x
     assert float(jax.grad(lambda E: jnp.sum(marked_x(E) * jnp.inf) + E**2)(3.0)) == 6.0

@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 import jaxmpm
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
 AL = jaxmpm.Material.make("al", "linear_elastic", rho0=2700.0, E=70e9, nu=0.0)
 

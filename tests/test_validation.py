@@ -9,7 +9,7 @@ import pytest
 
 import jaxmpm
 from jaxmpm.materials import Material
-from jaxmpm.scene import Box, Grid, Phase, Scene
+from jaxmpm.model.scene import Box, Grid, Phase, Scene
 
 MAT = Material.make("m", "linear_elastic", rho0=1000.0, E=1e6, nu=0.3)
 
@@ -100,8 +100,8 @@ geometry = { type = "box", lo = [0.2, 0.2], hi = [0.6, 0.6] }
 
 
 def test_scene_file_round_trip_and_valid_file():
-    scene = jaxmpm.scenefile.scene_from_toml(SCENE_TOML)
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+    scene = jaxmpm.io.scenefile.scene_from_toml(SCENE_TOML)
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
 
 
 @pytest.mark.parametrize(
@@ -121,7 +121,7 @@ def test_scene_file_round_trip_and_valid_file():
 )
 def test_unknown_toml_key(text, match):
     with pytest.raises(ValueError, match=match):
-        jaxmpm.scenefile.scene_from_toml(text)
+        jaxmpm.io.scenefile.scene_from_toml(text)
 
 
 def test_malformed_toml_names_the_line(tmp_path):
@@ -143,7 +143,7 @@ def test_malformed_toml_names_the_line(tmp_path):
 )
 def test_wrong_types_and_values_in_scene_file(old, new, match):
     with pytest.raises(ValueError, match=match):
-        jaxmpm.scenefile.scene_from_toml(SCENE_TOML.replace(old, new))
+        jaxmpm.io.scenefile.scene_from_toml(SCENE_TOML.replace(old, new))
 
 
 def test_particle_leaving_the_grid_stops_the_run_with_a_message():
@@ -200,21 +200,21 @@ def test_debug_mode_gives_the_same_run():
 
 
 def test_fragmentation_option_round_trips_and_bad_values_are_named():
-    scene = dataclasses.replace(jaxmpm.scenefile.scene_from_toml(SCENE_TOML), c_h=0.1, fragmentation="plastic")
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+    scene = dataclasses.replace(jaxmpm.io.scenefile.scene_from_toml(SCENE_TOML), c_h=0.1, fragmentation="plastic")
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
     with pytest.raises(
         ValueError, match=r"effects\.fragmentation = 'all' is invalid: allowed 'failed' \| 'plastic' \| 'tensile'"
     ):
         dataclasses.replace(scene, fragmentation="all")
     with pytest.raises(ValueError, match=r"effects\.fragmentation = 3 is invalid"):
-        jaxmpm.scenefile.scene_from_toml(SCENE_TOML + "\n[effects]\nc_h = 0.1\nfragmentation = 3\n")
+        jaxmpm.io.scenefile.scene_from_toml(SCENE_TOML + "\n[effects]\nc_h = 0.1\nfragmentation = 3\n")
 
 
 def test_difference_geometry_samples_around_the_hole_round_trips_and_names_bad_parts():
     """A fluid around a body: the base's particles outside the holes; the TOML text gives the scene
     back; a bad part is named with its path."""
-    from jaxmpm.scene import Difference, Sphere
-    from jaxmpm.state import sample_phase
+    from jaxmpm.model.scene import Difference, Sphere
+    from jaxmpm.model.sampling import sample_phase
 
     hole = Sphere((0.5, 0.5), 0.2)
     around = Difference(Box((0.0, 0.0), (1.0, 1.0)), (hole, Box((0.0, 0.0), (0.2, 0.2))))
@@ -223,12 +223,12 @@ def test_difference_geometry_samples_around_the_hole_round_trips_and_names_bad_p
     full = sample_phase(scene.grid, Phase("all", "m", Box((0.0, 0.0), (1.0, 1.0))))
     assert len(body) > 0 and len(fluid) + len(body) + 16 == len(full)  # the corner box holds 4 x 4 points
     assert not np.any(np.sum((fluid - 0.5) ** 2, 1) < 0.2**2)
-    assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
+    assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(scene)) == scene
     text = 'type = "cone"'.join(jaxmpm.scene_to_toml(scene).rsplit('type = "sphere"', 1))  # the hole's
     with pytest.raises(
         ValueError,
         match=r"phase\.fluid\.geometry\.minus\[0\]\.type = 'cone' is invalid: allowed box \| sphere \| difference",
     ):
-        jaxmpm.scenefile.scene_from_toml(text)
+        jaxmpm.io.scenefile.scene_from_toml(text)
     with pytest.raises(ValueError, match=r"geometry\.base = .* allowed a Box or Sphere"):
         Difference("box", ())

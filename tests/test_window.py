@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm import ddmp
-from jaxmpm.geometry import Grid
-from jaxmpm.scene import Box, Phase, Scene
-from jaxmpm.scenefile import scene_from_toml, scene_to_toml
+from jaxmpm.numerics import ddmp
+from jaxmpm.model.geometry import Grid
+from jaxmpm.model.scene import Box, Phase, Scene
+from jaxmpm.io.scenefile import scene_from_toml, scene_to_toml
 
 jax.config.update("jax_enable_x64", True)
 
@@ -146,8 +146,8 @@ def test_exchange_on_the_shared_block_equals_the_whole_grid(shared_block, fits):
     """Random nodal masses, volumes and velocities of three fields: each field has volume on its own
     region, and two or more share the nodes of `shared_block` (lo, hi per axis); the window
     (21, 10) holds that block in the first case, not in the second (the whole grid)."""
-    from jaxmpm.multifield import exchange_force
-    from jaxmpm.step import Layout
+    from jaxmpm.stages.multifield import exchange_force
+    from jaxmpm.stages.layout import Layout
 
     scene = impact((21, 10))
     lay, params = Layout.of(scene), jaxmpm.default_params(scene)

@@ -57,6 +57,8 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
+from jaxmpm.materials.kind import Model
+
 INF = math.inf
 POS = (0.0, INF, False, False)  # > 0
 NONNEG = (0.0, INF, True, False)  # >= 0
@@ -410,8 +412,6 @@ def bulk_sound_speed2(eos, c, rho, e):
 
 def compose(eos, strength, failure):
     """The Model of 'eos[+strength][+failure...]'."""
-    from jaxmpm.materials.models import Model
-
     constants = dict(EOS[eos].constants)
     for part in ([STRENGTH[strength]] if strength else []) + [FAILURE[f] for f in failure]:
         constants.update(part.constants)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import numbers
+import sys
 import warnings
 from dataclasses import dataclass
 from importlib import resources
@@ -21,6 +22,8 @@ from typing import Any
 
 import jax
 import numpy as np
+
+from jaxmpm.materials.models import MODELS, check_constant, model_of, split_model
 
 try:
     import tomllib
@@ -79,8 +82,6 @@ def _outside_this_module() -> int:
     """The `stacklevel` that makes a warning issued by `warn_implausible_units`, called from
     Material.__post_init__, name the first frame outside this module and the dataclass's generated
     __init__: the user's line that made the Material, by `Material(...)` or `Material.make`."""
-    import sys
-
     frame, level = sys._getframe(1), 2  # __post_init__ is level 2 as seen from the warning
     while frame is not None:
         inner = frame
@@ -99,8 +100,6 @@ def _outside_this_module() -> int:
 def _checked_constants(key, model, constants: dict) -> dict[str, float]:
     """The constants of a material of `model` as floats in sorted order, each checked against its
     model's allowed range; a ValueError naming materials.KEY.NAME and what is allowed otherwise."""
-    from jaxmpm.materials.models import check_constant, model_of, split_model, MODELS
-
     where = f"materials.{key}"
     if not isinstance(key, str) or not key.isidentifier():
         raise ValueError(f"materials key {key!r} is invalid: allowed an identifier")
@@ -136,8 +135,6 @@ def warn_implausible_units(where: str, model: str, constants: dict, stacklevel: 
     is beyond any real material's: the usual sign of constants not in SI units (rho0 in g/cm^3
     makes the wave speed 32x too fast). Only a warning: scaled, non-dimensional constants are
     legitimate (the built-in elastic impact's wave speed is 1.16 m/s)."""
-    from jaxmpm.materials.models import model_of
-
     rho0 = constants.get("rho0")
     if rho0 is None:
         return
@@ -279,8 +276,6 @@ def default_model(key: str) -> str:
 def library_material(key: str, model: str | None = None, new_key: str | None = None, **overrides: float) -> Material:
     """The Material of a library key with its default model (or `model`), constants from the table
     and `overrides` on top; named `new_key` (default: key)."""
-    from jaxmpm.materials.models import model_of
-
     model = default_model(key) if model is None else model
     pool = library_constants(key, model)
     name = key if new_key is None else new_key

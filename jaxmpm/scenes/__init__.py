@@ -3,10 +3,13 @@ its docstring states the source, geometry, phases, effects and what it measures.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
+from jaxmpm.model.state import init_state
 from jaxmpm.scenes import basic, impact, penetration
+from jaxmpm.scenes.options import builder_options
 
 
 @dataclass(frozen=True)
@@ -85,8 +88,6 @@ def initial_state(scene, params):
     mode shape) when the scene is that built-in: named like it and with its bodies (each phase's
     name, material and geometry as its builder makes them, whatever its options). A scene of
     one's own that carries a built-in's name keeps the initial state its file describes."""
-    from jaxmpm.state import init_state
-
     state = init_state(scene, params)
     b = BUILTINS.get(scene.name)
     if b is None or b.prepare is None or _bodies(scene) != _bodies(b.build()):
@@ -96,3 +97,13 @@ def initial_state(scene, params):
 
 def _bodies(scene):
     return [(p.name, p.material, p.geometry) for p in scene.phases]
+
+
+def describe(name: str) -> list[tuple[str, Any, str]]:
+    """[(option, default, allowed values in words)] of the built-in scene `name`; floors that depend
+    on other options are given at those options' defaults."""
+    b = BUILTINS[name]
+    options = builder_options(b.build)
+    defaults = {k: p.default for k, p in options.items() if p.default is not inspect.Parameter.empty}
+    ranges = b.ranges(**defaults) if b.ranges is not None else {}
+    return [(k, defaults.get(k), ranges[k].words if k in ranges else "see the builder's docstring") for k in options]

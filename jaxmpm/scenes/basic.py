@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
+import jax.numpy as jnp
+
 from jaxmpm.materials import Material
-from jaxmpm.scene import MAX_PPC, SHAPES, Boundary, Box, Grid, Phase, Scene, Sphere
+from jaxmpm.model.scene import MAX_PPC, SHAPES, Boundary, Box, Grid, Phase, Scene, Sphere
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, Range, choice, integer, number  # noqa: F401  (FLAG: the builders' flags)
 
@@ -16,7 +19,7 @@ PPC = Range(
 CFL = Range("a number in (0, 1]", lambda v: options._real(v) and 0 < v <= 1)
 
 
-def _cells(n: float, resolution: float, minimum: int = 2) -> int:
+def cells_of(n: float, resolution: float, minimum: int = 2) -> int:
     """round(n resolution) cells; a resolution that gives fewer than `minimum` is an error (the
     builder's resolution floor refuses it first), never silently raised to the minimum."""
     cells = int(round(n * resolution)) if resolution > 0 else 0
@@ -47,7 +50,7 @@ def elastic_impact(resolution: float = 1.0, shape: str = "ddmp") -> Scene:
     Effects: none; walls free. Measures: kinetic/strain energy exchange and total energy, momentum.
     """
     options.check("elastic_impact", elastic_impact_ranges(), dict(resolution=resolution, shape=shape))
-    n = _cells(IMPACT_CELLS, resolution, IMPACT_LEAST_CELLS)
+    n = cells_of(IMPACT_CELLS, resolution, IMPACT_LEAST_CELLS)
     mat = Material.make("soft_elastic", "hypoelastic", rho0=1000.0, E=1000.0, nu=0.3)
     return Scene(
         name="elastic_impact",
@@ -71,9 +74,6 @@ BAR_LENGTH, BAR_SPEED = 25.0, 10.0
 def vibrating_bar_state(scene, params, state):
     """The bar's first mode: v(X, 0) = v0 sin(pi X / (2 L)), the amplitude v0 (m/s) being the
     phase's initial velocity (state.v on entry)."""
-    import dataclasses
-
-    import jax.numpy as jnp
 
     beta = math.pi / (2 * BAR_LENGTH)
     return dataclasses.replace(state, v=state.v * jnp.sin(beta * state.x[:, :1]))

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from jaxmpm.materials import library_material
+import numpy as np
+
+from jaxmpm.materials import Material, library_material
 from jaxmpm.materials.library import library_constants
-from jaxmpm.scene import Boundary, Box, Difference, Grid, Phase, Scene, Sphere
+from jaxmpm.model.scene import Boundary, Box, Difference, Grid, Phase, Scene, Sphere
 from jaxmpm.scenes import options
-from jaxmpm.scenes.basic import _cells
+from jaxmpm.scenes.basic import cells_of
 from jaxmpm.scenes.options import FLAG, choice, number, optional
 
 SPHERE_DIAMETER = 9.53e-3  # m (Piekutowski 1993)
@@ -120,7 +122,7 @@ def debris_cloud(
     C_h = 1: 5.97, 6.13, 4.87), so the seed's trend (point 4 from 3.9 to 6.1 as C_h grows) is not
     reproduced. With fragmentation = 'plastic' (the seed's literal E5) the trend is there but the
     shock dies in the plate (C_h = 0.02, without the walls, resolution 1: 5.33, 5.33, 6.10;
-    resolution 2: 5.35, 5.35, 6.15): jaxmpm.constitutive.fragmentation_gate says why.
+    resolution 2: 5.35, 5.35, 6.15): jaxmpm.stages.closure.fragmentation_gate says why.
     With fragmentation = 'tensile' (one field) C_h moves point 4 as in the seed at resolution 2:
     4.28 (C_h = 0.02), 4.98, 5.50, 6.09 (C_h = 1), points 1 and 2 at 5.4-5.9 (docs/closure.md has
     the sweeps at resolutions 0.75 to 3; the front, point 1, stays 0.4-0.6 km/s slow).
@@ -155,8 +157,8 @@ def debris_cloud(
     R = sphere_diameter / 2
     z_lo = -(plate_thickness + speed * t_end + 10e-3)
     z_hi = 2 * R + gap + sphere_diameter
-    n_r = _cells((plate_radius + 3e-3) / DEBRIS_CELL, resolution, 4)
-    n_z = _cells((z_hi - z_lo) / DEBRIS_CELL, resolution, 4)
+    n_r = cells_of((plate_radius + 3e-3) / DEBRIS_CELL, resolution, 4)
+    n_z = cells_of((z_hi - z_lo) / DEBRIS_CELL, resolution, 4)
     al = (
         library_material("al2024", model="mie_gruneisen+johnson_cook_thermal")
         if fragmentation == "tensile"
@@ -213,8 +215,6 @@ def taylor_steel_material():
     T_room = 20 C, T_melt = 1540 C, cp = 460 J/(kg K). The volumetric response is linear
     (K = E / (3 (1 - 2 nu))), as in those codes. The reference counts 90% of the plastic work as
     heat; jaxmpm's adiabatic temperature counts all internal energy (hydro.py)."""
-    from jaxmpm.materials import Material
-
     E, nu = 206.9e9, 0.3
     return Material.make(
         "steel_42crmo4",
@@ -241,8 +241,6 @@ def taylor_bilinear_copper_material():
     modulus of 100 MPa, rate- and temperature-independent; linear volumetric response
     (K = E / (3 (1 - 2 nu))). Written as the Johnson-Cook yield stress with A = 400 MPa,
     B = 100 MPa, n = 1, C = 0."""
-    from jaxmpm.materials import Material
-
     E, nu = 117e9, 0.35
     return Material.make(
         "copper_bilinear",
@@ -376,8 +374,6 @@ def taylor_measures(scene, state):
     twice the largest r among particles within one cell of the wall. These are particle-centre
     extents; the material's surface lies half a particle spacing h / (2 ppc) beyond each free face,
     and the figures quoted for the scene (`taylor_bar`) add it: L + h / (2 ppc), D + h / ppc."""
-    import numpy as np
-
     x = np.asarray(state.x)
     near = x[:, 1] < scene.grid.h
     return float(x[:, 1].max()), 2.0 * float(x[near, 0].max())
@@ -391,8 +387,6 @@ def brittle_rod_material():
     these are a soda-lime glass's handbook elastic constants (rho0 = 2500 kg/m^3, E = 70 GPa,
     nu = 0.22) with an illustrative tensile strength sigma_t = 100 MPa, tau = 1 s (elastic while
     intact over the test's microseconds) and tau_failed = 1 us (failed material flows as rubble)."""
-    from jaxmpm.materials import Material
-
     return Material.make(
         "brittle_glass", "maxwell_brittle", rho0=2500.0, E=70e9, nu=0.22, tau=1.0, sigma_t=100e6, tau_failed=1e-6
     )

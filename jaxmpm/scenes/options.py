@@ -4,6 +4,7 @@ the options given, since a floor can depend on another option), used both by the
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -69,16 +70,7 @@ def check(scene: str, ranges: dict[str, Range], values: dict[str, Any]) -> None:
             raise ValueError(f"{scene}: {name} = {values[name]!r} is invalid: allowed {r.words}")
 
 
-def describe(name: str) -> list[tuple[str, Any, str]]:
-    """[(option, default, allowed values in words)] of the built-in scene `name`; floors that depend
-    on other options are given at those options' defaults."""
-    import inspect
-
-    from jaxmpm.scenefile import builder_options
-    from jaxmpm.scenes import BUILTINS
-
-    b = BUILTINS[name]
-    options = builder_options(b.build)
-    defaults = {k: p.default for k, p in options.items() if p.default is not inspect.Parameter.empty}
-    ranges = b.ranges(**defaults) if b.ranges is not None else {}
-    return [(k, defaults.get(k), ranges[k].words if k in ranges else "see the builder's docstring") for k in options]
+def builder_options(build) -> dict:
+    """{name: inspect.Parameter} of the options a built-in scene's builder takes by name."""
+    params = inspect.signature(build).parameters
+    return {p: v for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)}

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import math
 
+import jax
 import numpy as np
 
+from jaxmpm.materials import Material
 from jaxmpm.materials.library import library_constants, library_material
-from jaxmpm.scene import Boundary, Box, Difference, Grid, Phase, Scene
+from jaxmpm.model.sampling import sample_phase
+from jaxmpm.model.scene import Boundary, Box, Difference, Grid, Phase, Scene
+from jaxmpm.model.state import phase_slices
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, choice, number, optional
 
@@ -183,8 +187,6 @@ def penetration_measures(scene, state) -> dict:
     and tail speed (m/s, mean -v_z of the tail) of a rod_penetration State. The tail is the rod
     material that started within one diameter of the rod's top (eroded rod material that flows
     back up the crater is not the rod)."""
-    from jaxmpm.state import phase_slices, sample_phase
-
     i = scene.phase_names().index("rod")
     sl = phase_slices(scene)[i]
     x, v = np.asarray(state.x)[sl], np.asarray(state.v)[sl]
@@ -204,8 +206,6 @@ def _rod_diameter(scene) -> float:
 def penetration_history(scene, history) -> dict:
     """`penetration_measures` at every output time of a History: arrays t (s), depth, rod_length,
     tail_speed."""
-    import jax
-
     t = np.asarray(history.t)
     rows = [penetration_measures(scene, jax.tree.map(lambda a: a[k], history)) for k in range(len(t))]
     return {"t": t, **{key: np.array([r[key] for r in rows]) for key in rows[0]}}
@@ -234,8 +234,6 @@ def laminate_material():
     of a quasi-isotropic carbon/epoxy laminate (the seed names no material): rho0 = 1600 kg/m^3,
     in-plane E2 = 50 GPa and nu23 = 0.3, through-thickness E1 = 10 GPa, nu12 = 0.06 (so that
     nu12 / E1 = nu21 / E2 with nu21 = 0.3), transverse shear G12 = 4 GPa."""
-    from jaxmpm.materials import Material
-
     return Material.make(
         "cfrp_laminate",
         "transversely_isotropic",
@@ -415,8 +413,6 @@ def projectile_concrete(
 def projectile_speed(scene, history) -> dict:
     """Arrays t (s), speed (m/s, the projectile's mass-weighted mean of -v_z) and nose depth (m,
     below the block's face; negative above it) at every output of a projectile_concrete history."""
-    from jaxmpm.state import phase_slices
-
     sl = phase_slices(scene)[0]
     m, vz, z = (np.asarray(a)[:, sl] for a in (history.mass, history.v[..., 1], history.x[..., 1]))
     return {"t": np.asarray(history.t), "speed": -(m * vz).sum(1) / m.sum(1), "depth": -z.min(1)}

@@ -13,44 +13,44 @@ from typing import Any, Mapping
 import numpy as np
 
 
-def _fail(name: str, value: Any, allowed: str) -> None:
+def fail(name: str, value: Any, allowed: str) -> None:
     raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
 
 
-def _is_number(v: Any) -> bool:
+def is_number(v: Any) -> bool:
     """A real number (Python or NumPy scalar), not a bool and not a string of digits."""
     return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
-def _is_integer(v: Any) -> bool:
+def is_integer(v: Any) -> bool:
     """An integer (Python or NumPy), not a bool."""
     return isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_))
 
 
-def _floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
+def as_floats(name: str, value: Any, n: int | None = None) -> tuple[float, ...]:
     """A list of finite numbers (n of them, one per axis, where n is given) as floats. A string is
     not a list of numbers (it would be read digit by digit)."""
-    if _is_number(value):
+    if is_number(value):
         value = (value,)
     if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
-        _fail(name, value, "a list of numbers" if n != 1 else "a number")
+        fail(name, value, "a list of numbers" if n != 1 else "a number")
     value = tuple(value)
-    if not all(_is_number(v) for v in value):
-        _fail(name, value, "a list of numbers")
+    if not all(is_number(v) for v in value):
+        fail(name, value, "a list of numbers")
     out = tuple(float(v) for v in value)
     if n is not None and len(out) != n:
-        _fail(name, value, f"a list of {n} numbers (one per axis)")
+        fail(name, value, f"a list of {n} numbers (one per axis)")
     if not all(math.isfinite(v) for v in out):
-        _fail(name, value, "finite numbers")
+        fail(name, value, "finite numbers")
     return out
 
 
-def _float(name: str, value: Any) -> float:
+def as_float(name: str, value: Any) -> float:
     """One finite number as a float (a list, even of one number, or a string is refused)."""
-    if not _is_number(value):
-        _fail(name, value, "a number")
+    if not is_number(value):
+        fail(name, value, "a number")
     if not math.isfinite(float(value)):
-        _fail(name, value, "a finite number")
+        fail(name, value, "a finite number")
     return float(value)
 
 
@@ -63,15 +63,13 @@ class Box:
     hi: tuple[float, ...]
 
     def __post_init__(self):
-        object.__setattr__(self, "lo", _floats("geometry.lo", self.lo))
-        object.__setattr__(self, "hi", _floats("geometry.hi", self.hi, len(self.lo)))
+        object.__setattr__(self, "lo", as_floats("geometry.lo", self.lo))
+        object.__setattr__(self, "hi", as_floats("geometry.hi", self.hi, len(self.lo)))
         for d, (a, b) in enumerate(zip(self.lo, self.hi)):
             if not b > a:
-                _fail(f"geometry.hi[{d}]", b, f"> geometry.lo[{d}] = {a}")
+                fail(f"geometry.hi[{d}]", b, f"> geometry.lo[{d}] = {a}")
 
     def contains(self, x):
-        import numpy as np
-
         return np.all((x >= np.asarray(self.lo)) & (x < np.asarray(self.hi)), axis=-1)
 
     def to_dict(self):
@@ -86,10 +84,10 @@ class Sphere:
     radius: float
 
     def __post_init__(self):
-        object.__setattr__(self, "center", _floats("geometry.center", self.center))
-        r = _float("geometry.radius", self.radius)
+        object.__setattr__(self, "center", as_floats("geometry.center", self.center))
+        r = as_float("geometry.radius", self.radius)
         if not r > 0:
-            _fail("geometry.radius", r, "> 0 m")
+            fail("geometry.radius", r, "> 0 m")
         object.__setattr__(self, "radius", r)
 
     @property
@@ -101,8 +99,6 @@ class Sphere:
         return tuple(c + self.radius for c in self.center)
 
     def contains(self, x):
-        import numpy as np
-
         return np.sum((x - np.asarray(self.center)) ** 2, axis=-1) < self.radius**2
 
     def to_dict(self):
@@ -119,13 +115,13 @@ class Difference:
 
     def __post_init__(self):
         if not isinstance(self.base, (Box, Sphere)):
-            _fail("geometry.base", self.base, "a Box or Sphere")
+            fail("geometry.base", self.base, "a Box or Sphere")
         minus = (self.minus,) if isinstance(self.minus, (Box, Sphere, Difference)) else tuple(self.minus)
         for g in minus:
             if not isinstance(g, (Box, Sphere, Difference)):
-                _fail("geometry.minus", g, "a list of Box, Sphere or Difference")
+                fail("geometry.minus", g, "a list of Box, Sphere or Difference")
             if len(g.lo) != len(self.base.lo):
-                _fail("geometry.minus", g.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
+                fail("geometry.minus", g.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
         object.__setattr__(self, "minus", minus)
 
     @property
@@ -152,16 +148,16 @@ GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
 def geometry_from_dict(d: Mapping, where: str):
     """Box, Sphere or Difference from its scene-file table; ValueError naming `where` on bad input."""
     if not isinstance(d, Mapping):
-        _fail(where, d, "a table with key 'type' (box | sphere | difference)")
+        fail(where, d, "a table with key 'type' (box | sphere | difference)")
     d = dict(d)
     kind = d.pop("type", None)
     if not isinstance(kind, str) or kind not in GEOMETRIES:
-        _fail(f"{where}.type", kind, " | ".join(GEOMETRIES))
+        fail(f"{where}.type", kind, " | ".join(GEOMETRIES))
     cls = GEOMETRIES[kind]
     names = [f.name for f in dataclasses.fields(cls)]
     unknown = set(d) - set(names)
     if unknown:
-        _fail(f"{where}.{sorted(unknown)[0]}", d[sorted(unknown)[0]], f"keys {names} for type {kind!r}")
+        fail(f"{where}.{sorted(unknown)[0]}", d[sorted(unknown)[0]], f"keys {names} for type {kind!r}")
     missing = set(names) - set(d)
     if missing:
         raise ValueError(f"{where}.{sorted(missing)[0]} is missing: a {kind} needs {names}")
@@ -189,25 +185,25 @@ class Grid:
 
     def __post_init__(self):
         cells = self.cells
-        if _is_integer(cells):
+        if is_integer(cells):
             cells = (cells,)
         try:
-            ok = not isinstance(cells, (str, bytes)) and all(_is_integer(c) for c in cells)
+            ok = not isinstance(cells, (str, bytes)) and all(is_integer(c) for c in cells)
         except TypeError:
             ok = False
         if not ok or not 1 <= len(tuple(cells)) <= 3:
-            _fail("grid.cells", self.cells, "a list of 1 to 3 integers")
+            fail("grid.cells", self.cells, "a list of 1 to 3 integers")
         cells = tuple(int(c) for c in cells)
         for d, c in enumerate(cells):
             if c < 2:
-                _fail(f"grid.cells[{d}]", c, ">= 2")
+                fail(f"grid.cells[{d}]", c, ">= 2")
         object.__setattr__(self, "cells", cells)
-        h = _float("grid.h", self.h)
+        h = as_float("grid.h", self.h)
         if not h > 0:
-            _fail("grid.h", h, "> 0 m")
+            fail("grid.h", h, "> 0 m")
         object.__setattr__(self, "h", h)
         origin = (0.0,) * len(cells) if self.origin is None else self.origin
-        object.__setattr__(self, "origin", _floats("grid.origin", origin, len(cells)))
+        object.__setattr__(self, "origin", as_floats("grid.origin", origin, len(cells)))
 
     @property
     def dim(self) -> int:

@@ -7,14 +7,14 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
+import time
 import uuid
 from pathlib import Path
 
 
 def check_space(folder, needed: int) -> None:
     """OSError if the disk holding `folder` has less than `needed` bytes free, saying both."""
-    import shutil
-
     folder = Path(folder)
     probe = folder
     while not probe.exists():
@@ -53,7 +53,7 @@ def check_writable(*paths) -> None:
     naming the folder and the reason where that fails (no permission, read-only disk, a file in
     the way)."""
     for path in {Path(p).parent: Path(p) for p in reversed(paths)}.values():
-        _make_parent(path)
+        make_parent(path)
         folder = path.parent
         probe = folder / f".jaxmpm-write-probe.{uuid.uuid4().hex[:12]}"
         try:
@@ -65,7 +65,7 @@ def check_writable(*paths) -> None:
         os.unlink(probe)
 
 
-def _make_parent(path: Path) -> None:
+def make_parent(path: Path) -> None:
     """Create path's folder (and the folders above it); FileExistsError naming the path and the
     component in the way where a component of the folder is a file."""
     try:
@@ -83,7 +83,7 @@ def _make_parent(path: Path) -> None:
         ) from None
 
 
-# the temporary files of `_atomic` and `check_writable`: .<name>.<pid>-<12 hex>.tmp (or, written by
+# the temporary files of `atomic_write` and `check_writable`: .<name>.<pid>-<12 hex>.tmp (or, written by
 # earlier versions, .<name>.<12 hex>.tmp) and .jaxmpm-write-probe.<12 hex>
 _TEMPORARY = re.compile(r"^\.(?:.+\.(?:(?P<pid>\d+)-)?[0-9a-f]{12}\.tmp|jaxmpm-write-probe\.[0-9a-f]{12})$")
 _UNOWNED_AGE = 600.0  # s: a temporary file that names no process is stale after this long
@@ -103,8 +103,6 @@ def remove_stale_temporaries(folder) -> list[str]:
     """Delete the temporary files that killed runs left in `folder` (a run killed while it wrote a
     file: SIGKILL, a power cut): those whose process is gone, and those naming no process that are
     older than _UNOWNED_AGE. Returns the names deleted (empty where none, or no such folder)."""
-    import time
-
     folder = Path(folder)
     if not folder.is_dir():
         return []
@@ -127,11 +125,11 @@ def remove_stale_temporaries(folder) -> list[str]:
 
 
 @contextlib.contextmanager
-def _atomic(path: Path):
+def atomic_write(path: Path):
     """Yield a fresh temporary name in path's directory (naming this process, so that a later run
     knows it stale once the process is gone: `remove_stale_temporaries`); rename it to `path` on
     success, delete it on error (the final name never holds a partial file)."""
-    _make_parent(path)
+    make_parent(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.tmp")
     try:
         yield os.fspath(tmp)

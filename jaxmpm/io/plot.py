@@ -5,11 +5,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from jaxmpm.files import _atomic, check_new
-from jaxmpm.io import _check_scene, _check_shapes
-from jaxmpm.state import State, phase_slices
+from jaxmpm import diagnostics
+from jaxmpm.io.files import atomic_write, check_new
+from jaxmpm.io.schema import check_scene, check_shapes, units
+from jaxmpm.model.params import default_params
+from jaxmpm.model.state import State, phase_slices
 
 
 def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
@@ -18,13 +21,13 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     coloured by damage where any particle is damaged (the crack pattern). Returns the path.
     Raises FileExistsError if `path` exists and not `overwrite` (or is a directory); ValueError if
     `path` does not end in .png or the state does not fit the scene."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     path = Path(path)
     if path.suffix != ".png":
         raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in .png")
     check_new(path, overwrite=overwrite)  # and it is not a directory, even with overwrite
-    _check_scene(scene)
+    check_scene(scene)
     if not isinstance(state, State):
         raise ValueError(
             f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State (one State, e.g. "
@@ -39,7 +42,7 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
             f"state has {x.shape[0]} particles in {x.shape[1]}D: the scene {scene.name!r} has "
             f"{n} particles in {scene.dim}D"
         )
-    _check_shapes(
+    check_shapes(
         scene,
         {k: np.asarray(getattr(state, k)) for k in ("x", "v", "stress", "damage") if getattr(state, k) is not None},
         "state",
@@ -100,7 +103,7 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
             ax.set_aspect("equal")
             ax.set_xlabel("r (m)" if scene.axisymmetric else "x (m)")
             ax.set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
-    with _atomic(path) as tmp:
+    with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
     return path
 
@@ -157,11 +160,8 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
     kinetic, internal and total energy against time over every output. Each snapshot panel is as
     wide as the grid's aspect asks (a tall axisymmetric grid gets narrow panels side by side, not
     a wide figure of empty space); legends sit outside the data."""
-    from matplotlib.figure import Figure
-    from matplotlib.ticker import MaxNLocator
-
-    from jaxmpm import diagnostics
-    from jaxmpm.params import default_params
+    from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
+    from matplotlib.ticker import MaxNLocator  # as Figure: loaded when drawn
 
     if field not in PLOT_FIELDS:
         raise ValueError(f"field = {field!r} is invalid: allowed {' | '.join(PLOT_FIELDS)}")
@@ -222,7 +222,7 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
             ax.xaxis.set_major_locator(MaxNLocator(max(2, int(panel_w * 1.2))))  # labels that do not overlap
         axes[0].set_ylabel("z (m)" if scene.axisymmetric else "y (m)")
         if field == "phase":
-            from matplotlib.lines import Line2D
+            from matplotlib.lines import Line2D  # as Figure: loaded when drawn
 
             handles = [
                 Line2D([], [], ls="", marker="o", color=f"C{k % 10}", label=p.name) for k, p in enumerate(scene.phases)
@@ -249,14 +249,10 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
 
 def jax_tree_index(tree, i):
     """The i-th State of a history (the leading axis indexed; None leaves kept)."""
-    import jax
-
     return jax.tree.map(lambda a: None if a is None else np.asarray(a)[i], tree)
 
 
 def io_units(name, scene):
-    from jaxmpm.io import units
-
     return units(name, scene.dim, scene.axisymmetric)
 
 
@@ -270,7 +266,7 @@ def plot_run(
     if path.suffix != ".png":
         raise ValueError(f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in .png")
     check_new(path, overwrite=overwrite)
-    _check_scene(scene)
+    check_scene(scene)
     if not isinstance(history, State):
         raise ValueError(
             f"history = {type(history).__name__} is invalid: allowed a jaxmpm.State with a leading "
@@ -281,6 +277,6 @@ def plot_run(
     if x.ndim != 3 or x.shape[1:] != (n, scene.dim):
         raise ValueError(f"history.x has shape {x.shape}: the scene {scene.name!r} needs (outputs, {n}, {scene.dim})")
     fig = run_figure(scene, history, field, panels, params)
-    with _atomic(path) as tmp:
+    with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     return path

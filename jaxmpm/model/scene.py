@@ -18,21 +18,23 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-# the geometry lives in jaxmpm.geometry; its names stay importable from here
-from jaxmpm.geometry import (
+# the geometry lives in jaxmpm.model.geometry; its names stay importable from here
+from jaxmpm.model.geometry import (
     GEOMETRIES,
     Box as Box,
     Difference as Difference,
     Grid as Grid,
     Sphere as Sphere,
-    _fail,
-    _float,
-    _floats,
-    _is_integer,
+    fail as _fail,
+    as_float as _float,
+    as_floats as _floats,
+    is_integer as _is_integer,
     geometry_from_dict as geometry_from_dict,
 )
 from jaxmpm.materials import Material, resolve_material
-from jaxmpm.materials.models import model_of
+from jaxmpm.materials.models import model_of, split_model
+from jaxmpm.model.memory import check_scene_memory
+from jaxmpm.model.sampling import check_sampling
 
 SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
@@ -50,8 +52,6 @@ def is_fluid(model_name: str) -> bool:
     model = model_of(model_name)
     if not model.hydro:
         return False
-    from jaxmpm.materials.models import split_model
-
     return not split_model(model_name)[1]
 
 
@@ -174,12 +174,12 @@ class Scene:
         fields' particles (our closure, off by default; only with transfer = 'musl'): each pair's
         work J_kj . (v_k - v_j) at the remapped velocities, split as if the interface moved with
         the pair's centre of mass (the lighter field heats more); a particle takes its field's
-        nodal heat per unit mass, weighted by S_np (jaxmpm.fields.drag_heat). Without it the
+        nodal heat per unit mass, weighted by S_np (jaxmpm.stages.fields.drag_heat). Without it the
         drag's dissipation leaves the energy balance (the coarse 2-field debris cloud loses 3%).
       continuity: the continuity form of (E7) between the fields that share the common pressure:
         'transport' (the fields resist overlapping: each phase takes its compressibility share of
         the volume that the interface forces' motion closes, the exact transpose of those forces,
-        so that their work is stored; jaxmpm.multifield.continuity_volume_rate), 'off', or 'auto'
+        so that their work is stored; jaxmpm.stages.multifield.continuity_volume_rate), 'off', or 'auto'
         (default: 'transport' wherever the scene has interface forces and transfer = 'musl', else
         'off'). 'transport' only with interface forces and transfer = 'musl'.
       c_h: the plastic-strain scale C_h of the continuous-to-disperse closure (E4, E5, E8), or None
@@ -188,7 +188,7 @@ class Scene:
         in a phase whose model has a failure part (spall, Johnson-Cook failure, ...) alpha =
         1 - D tanh(eps_ps / C_h), D in [0, 1] its damage, so the plastic strain of intact material
         (a shock's) is not fragmentation; phases without a failure model use the seed's alpha.
-        'plastic': the seed's alpha = 1 - tanh(eps_ps / C_h) for every phase (jaxmpm.constitutive).
+        'plastic': the seed's alpha = 1 - tanh(eps_ps / C_h) for every phase (jaxmpm.stages.constitutive).
         'tensile': only plastic strain accrued in tension (p < 0) fragments, alpha = 1 - D with
         D = tanh(eps_t / C_h) held in the State's damage, and alpha acts on tension only (compressive
         pressure kept): a shock is untouched (docs/closure.md).
@@ -447,8 +447,9 @@ class Scene:
                 "None unless the scene has DDMP operators (shape 'ddmp', or interface "
                 "forces between velocity fields) or an exchange between fields",
             )
-        from jaxmpm.state import check_sampling
-
+        check_scene_memory(
+            self, itemsize=4
+        )  # before sampling (grid at float32, the least a run holds): refused, not swapped
         check_sampling(self)  # every phase has particles, all inside the grid's usable region
 
     # ------------------------------------------------------------------ derived static facts

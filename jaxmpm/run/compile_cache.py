@@ -15,6 +15,8 @@ import os
 import warnings
 from pathlib import Path
 
+import jax
+
 ENV_OFF = "JAXMPM_NO_CACHE"
 ENV_DIR = "JAXMPM_CACHE_DIR"
 ENV_MIN = "JAXMPM_CACHE_MIN_COMPILE_S"
@@ -50,8 +52,6 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
             stacklevel=2,
         )
         return None
-    import jax
-
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_seconds())
     return folder

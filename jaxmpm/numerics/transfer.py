@@ -35,9 +35,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.compile import bilinear_contraction
-from jaxmpm.shapes import TENSOR_SHAPES, node_strides
-from jaxmpm.state import stencil_offsets
+from jaxmpm.numerics.compile import bilinear_contraction
+from jaxmpm.numerics.shapes import TENSOR_SHAPES, node_strides
+from jaxmpm.numerics.shapes import stencil_offsets
 
 
 def _rows(st, field, n_nodes):

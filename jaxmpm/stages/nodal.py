@@ -3,7 +3,7 @@ force parts (E11), the particle radius of axisymmetric scenes, the DDMP grid ope
 and the nodes' support volumes.
 
 Shapes: N particles, S stencil nodes, K velocity fields, d dimensions; `lay` is a
-jaxmpm.step.Layout. SI units.
+jaxmpm.stages.layout.Layout. SI units.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import math
 
 import jax.numpy as jnp
 
-from jaxmpm import ddmp
-from jaxmpm.transfer import cell_sum, scatter, stencil_apply
+from jaxmpm.numerics import ddmp
+from jaxmpm.numerics.transfer import cell_sum, scatter, stencil_apply
 
 
 def grid_shape(lay):

@@ -10,13 +10,12 @@ Shapes: x (N, d) m; node (N, S) flat node index; w (N, S); dw (N, S, d) 1/m; S =
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-
-from jaxmpm.state import stencil_offsets
 
 
 @dataclass(frozen=True)
@@ -140,3 +139,8 @@ def stencil(scene, x) -> Stencil:
 def ddmp_beta(xi):
     """(E9) blend beta = prod_d 4 xi_d (1 - xi_d): 1 at a cell centre, 0 on cell faces. xi (N, d)."""
     return _product_over_axes(4 * xi * (1 - xi))
+
+
+def stencil_offsets(dim: int, width: int) -> np.ndarray:
+    """(width^dim, dim) integer offsets of a tensor-product stencil, first axis slowest."""
+    return np.array(list(itertools.product(range(width), repeat=dim)), dtype=np.int32).reshape(-1, dim)

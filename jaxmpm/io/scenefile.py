@@ -39,14 +39,15 @@ A geometry is { type = "box", lo, hi }, { type = "sphere", center, radius } or
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 from typing import Any, Mapping
 
 from jaxmpm.materials import Material, known_keys, library_material
 from jaxmpm.materials.models import model_names
-from jaxmpm.scene import Boundary, Grid, Phase, Scene, geometry_from_dict
+from jaxmpm.model.scene import Boundary, Grid, Phase, Scene, geometry_from_dict
+from jaxmpm.scenes import BUILTINS
+from jaxmpm.scenes.options import builder_options
 
 try:
     import tomllib
@@ -370,12 +371,6 @@ def parse_value(text: str) -> Any:
         return text
 
 
-def builder_options(build) -> dict:
-    """{name: inspect.Parameter} of the options a built-in scene's builder takes by name."""
-    params = inspect.signature(build).parameters
-    return {p: v for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)}
-
-
 def _builder_options(name, build, options) -> dict:
     """options, checked against the built-in scene's builder: ValueError naming an unknown one and
     listing those the builder takes (`jaxmpm scenes` shows them with their defaults)."""
@@ -389,8 +384,6 @@ def _builder_options(name, build, options) -> dict:
 def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **options) -> Scene:
     """A built-in scene by name (options are passed to its builder, e.g. resolution=0.5), or a
     scene file (.toml path). overrides: {'dotted.key': value} applied to the scene's dict form."""
-    from jaxmpm.scenes import BUILTINS
-
     path = os.fspath(name_or_path)
     if path.endswith(".toml") or os.path.sep in path:
         if options:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-import os
 import signal
 import threading
 import time
@@ -25,32 +24,22 @@ import warnings
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import checkify
+from tqdm.auto import tqdm
 
-from jaxmpm.compile import jit
-from jaxmpm.params import check_params
-
-# the run's arguments and step plan (jaxmpm.planning), importable from here as before
-from jaxmpm.planning import (
-    _planned_steps,
-    cfl_limit as cfl_limit,
-    check_dt,
-    check_memory,
-    check_t_end,
-    count as count,
-    plan_steps as plan_steps,
-    seconds,
-)
-from jaxmpm.planning import RunPlan, acceleration_bound, compile_seconds, flight_warnings
-from jaxmpm.state import State, check_state, check_state_dtypes, phase_slices
-from jaxmpm.tangents import evolving_tangents
+from jaxmpm.model.state import phase_slices
+from jaxmpm.numerics.compile import jit
+from jaxmpm.run.distributed import from_shards, make_sharded_step, mesh_size
+from jaxmpm.run.planning import compile_seconds, planned_steps
+from jaxmpm.run.tangents import evolving_tangents
 from jaxmpm.step import cfl_time_step, make_step
 
 
-def _traced(tree) -> bool:
+def is_traced(tree) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
 
 
-def _stack(states):
+def stack_states(states):
     return jax.tree.map(lambda *a: jnp.stack(a), *states)
 
 
@@ -74,8 +63,6 @@ def _checked_chunk_fn(scene, length):
     step checks that all particle fields are finite and inside the grid, and every primitive that
     makes a NaN is reported (nan_checks) with its source line. Returns run -> (error, state); the
     first failure names the step of the chunk and the time."""
-    from jax.experimental import checkify
-
     step = make_step(scene)
     margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
     lo = np.asarray(scene.grid.origin) + margin
@@ -132,8 +119,6 @@ def _step_of(scene, mesh):
     """The step of `scene`, or with a mesh its particle-sharded form (jaxmpm.distributed)."""
     if mesh is None:
         return make_step(scene)
-    from jaxmpm.distributed import make_sharded_step
-
     return make_sharded_step(scene, mesh)
 
 
@@ -166,7 +151,7 @@ def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
     )
 
 
-# The progress bar of the fixed-length run in flight (`_fixed_fn` with report=True), fed by
+# The progress bar of the fixed-length run in flight (`fixed_fn` with report=True), fed by
 # jax.debug.callback from inside the compiled scan: steps done, counted on the host.
 _PROGRESS = {"bar": None}
 REPORTS = 100  # progress updates per fixed-length run, at most
@@ -186,13 +171,11 @@ def _report_steps(done):
 
 
 @contextlib.contextmanager
-def _progress_bar(total: int, desc: str, enabled: bool):
-    """A tqdm bar of `total` steps that `_fixed_fn(..., report=True)` advances while it runs."""
+def progress_bar(total: int, desc: str, enabled: bool):
+    """A tqdm bar of `total` steps that `fixed_fn(..., report=True)` advances while it runs."""
     if not enabled:
         yield
         return
-    from tqdm.auto import tqdm
-
     _PROGRESS["bar"] = tqdm(total=total, unit="step", desc=desc, postfix="compiling")
     _PROGRESS["running"] = False
     try:
@@ -203,7 +186,7 @@ def _progress_bar(total: int, desc: str, enabled: bool):
 
 
 @functools.lru_cache(maxsize=32)
-def _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
+def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint (`checkpoint_mode`):
     False: reverse mode stores every step's intermediates (memory ~ n_out n_per_out steps'
     residuals, MiB each); "steps": each step under jax.checkpoint, its input state stored and the
@@ -301,8 +284,6 @@ def first_failure(scene, params, state, stop, dt, length, mesh=None):
         if not bool(health(params, state)[0]):
             here = state
             if mesh is not None:
-                from jaxmpm.distributed import from_shards, mesh_size
-
                 here = from_shards(scene, state, mesh_size(mesh))
             return i + 1, find_nonfinite(scene, here) or "a non-finite or out-of-grid particle"
     return None
@@ -314,219 +295,6 @@ def _failure_text(found, n_chunk, length, end_message=None) -> str:
     if found is None:
         return f"{end_message or 'a non-finite value'} (in chunk {n_chunk} of {length} steps)"
     return f"{found[1]} (step {found[0]} of chunk {n_chunk}, chunks of {length} steps)"
-
-
-def simulate(
-    scene,
-    params,
-    state,
-    t_end=None,
-    n_out=None,
-    *,
-    dt=None,
-    n_steps=None,
-    progress=True,
-    checkpoint="auto",
-    chunk=None,
-    restart_file=None,
-    restart_every=10,
-    debug=False,
-    mesh=None,
-    overwrite=False,
-    allow_short=False,
-    yes=False,
-    max_minutes=None,
-    announce=None,
-    _report=None,
-):
-    """Advance `state` to t_end (s) and return (final, history).
-
-    history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state
-    first), as a State whose arrays have a leading axis of length n_out + 1.
-    dt: a fixed time step (s), checked against the CFL limit; default: the CFL step each step.
-    n_steps: total scan steps (fixed-length driver); required inside jit/grad/vmap, where the
-      host cannot plan (use `plan_steps` outside). Outside them, a run whose n_steps do not reach
-      t_end (by more than half a step) raises a RuntimeError naming the time reached, unless
-      allow_short (then check final.t). progress: a tqdm bar of simulated time (host driver), or of
-      steps (n_steps given, outside jit/grad/vmap; `ensemble` draws one for its batch).
-    checkpoint: how reverse mode through the fixed-length driver bounds its memory (a forward run
-      computes the same either way).
-      "auto" (default): "steps" while n_steps States take at most 1 GiB (`checkpoint_mode`), else
-        "nested".
-      "steps": each step recomputed once in reverse from its stored input state: memory grows as
-        the number of steps (one State each), the gradient costs about 4-5 forward runs.
-      "nested" or True: two-level checkpointing (`_nested_scan`): memory grows as the square root
-        of the steps per output, for one more forward pass (about 5-6 forward runs).
-      False: no checkpointing; every step's intermediates are stored (MiB per step), and reading
-        them back is slower than recomputing the step: on the built-in scenes of 200 particles or
-        more the gradient took 1.0-2.1x the time of "steps" at 4-26x its memory (0.8x on a
-        50-particle column; benchmarks/grad_by_scene.py --checkpoint steps,none).
-      (Costs measured on the coarse debris cloud, benchmarks/grad_cost.py.)
-    chunk: steps per jitted chunk (host driver).
-    restart_file: path of a restart file to save every `restart_every` chunks and at each output
-      (host driver); `jaxmpm.restart.resume(restart_file)` continues the run bit-identically. An
-      existing file there is refused (FileExistsError: resume it, or delete it) unless overwrite=True.
-    debug: run the host driver's chunks under `jax.experimental.checkify` (slower): the run stops
-      at the first step with a non-finite or out-of-grid particle, naming the step and time, or at
-      the first primitive that makes a NaN, naming it and its source line.
-    mesh: a `jaxmpm.distributed.particle_mesh`: the particles split across its devices, the
-      nodal sums completed across them (`jaxmpm.distributed`); the state passed and the results
-      are in the scene's particle order. Not with restart_file or debug.
-    yes, max_minutes, announce (host driver): before the run its plan is made (particles, nodes,
-      planned steps, the memory it needs: more than is available is refused) and after its first
-      chunk its time is estimated (`jaxmpm.planning.RunPlan`); a run estimated over max_minutes
-      (None: $JAXMPM_MAX_MINUTES, else 60) raises a ValueError before it saves anything, unless
-      yes=True. announce: a callable given the plan's and the estimate's lines (`jaxmpm run`: print).
-    """
-    t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
-    n_out = scene.n_out if n_out is None else count("n_out", n_out)
-    n_steps = None if n_steps is None else count("n_steps", n_steps)
-    chunk = None if chunk is None else count("chunk", chunk)
-    checkpoint = checkpoint_mode(checkpoint, state, n_steps)
-    traced = _traced((params, state))
-    if traced and isinstance(state, State):
-        check_state_dtypes(state)
-    if not traced:
-        check_params(scene, params)
-        check_state(scene, state)
-        check_memory(scene, state)
-        t_end = check_t_end(t_end, state.t)
-        if dt is not None:
-            check_dt(scene, params, state, seconds("dt", dt))
-        acceleration_bound(scene, params, state, None if dt is None else seconds("dt", dt))
-    plan = None
-    if not traced and n_steps is None:
-        import warnings
-
-        for line in flight_warnings(scene, state, t_end):
-            warnings.warn(f"{scene.name}: {line}", UserWarning, stacklevel=2)
-        plan = RunPlan(
-            scene, params, state, t_end, n_out, None if dt is None else seconds("dt", dt), max_minutes, yes, announce
-        )
-        plan.check_memory()
-        if announce is not None:
-            announce(plan.text())
-    if (traced or n_steps is not None) and debug:
-        raise ValueError(
-            "debug=True is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver checks "
-            "nothing): allowed debug=False there, or no n_steps outside them"
-        )
-    if restart_file is not None and not isinstance(restart_file, (str, os.PathLike)):
-        raise ValueError(f"restart_file = {restart_file!r} is invalid: allowed a path (str or pathlib.Path) or None")
-    if restart_file is not None:
-        if traced or n_steps is not None:
-            raise ValueError(
-                "restart_file is invalid with n_steps or inside jit/grad/vmap (the fixed-length driver "
-                "saves nothing): allowed restart_file=None there, or no n_steps outside them"
-            )
-        from jaxmpm.files import check_new
-
-        check_new(restart_file, overwrite=overwrite)
-    shards = 1
-    if mesh is not None:
-        from jaxmpm import distributed
-
-        if restart_file is not None or debug:
-            raise ValueError("mesh is invalid with restart_file or debug: allowed mesh=None for those runs")
-        shards = distributed.mesh_size(mesh)
-        state = distributed.to_shards(scene, state, mesh)
-    t0 = None if traced else float(state.t)
-    final, history = _run(
-        scene,
-        params,
-        state,
-        t_end,
-        n_out,
-        dt,
-        n_steps,
-        progress,
-        checkpoint,
-        chunk,
-        restart_file,
-        restart_every,
-        debug,
-        traced,
-        mesh,
-        _report,
-        plan,
-    )
-    if n_steps is not None and not traced and not allow_short:
-        _check_reached(scene, final.t, t0, t_end, n_steps)
-    if mesh is None:
-        return final, history
-    return distributed.from_shards(scene, final, shards), distributed.from_shards(
-        scene, history, shards, time_axis=True
-    )
-
-
-def _check_reached(scene, t, t0, t_end, n_steps):
-    """RuntimeError when a fixed-length run ends short of t_end by more than half of a step of
-    (t_end - t0) / n_steps: its n_steps were too few (or its CFL step shrank during the run)."""
-    reached = float(np.max(np.asarray(t)))
-    if reached < t_end - 0.5 * (t_end - t0) / n_steps:
-        raise RuntimeError(
-            f"{scene.name}: the run reached only t = {reached:.6g} s of t_end = {t_end:g} s in "
-            f"n_steps = {n_steps}: pass a larger n_steps (jaxmpm.plan_steps(scene, params, state, t_end) "
-            "plans them), or allow_short=True and check final.t"
-        )
-
-
-def _run(
-    scene,
-    params,
-    state,
-    t_end,
-    n_out,
-    dt,
-    n_steps,
-    progress,
-    checkpoint,
-    chunk,
-    restart_file,
-    restart_every,
-    debug,
-    traced,
-    mesh,
-    report=None,
-    plan=None,
-):
-    """report: whether the fixed-length driver tells a progress bar its steps (None: where progress
-    is on outside jit/grad/vmap; `ensemble` sets it for its vmapped members and draws the bar)."""
-    dtype = state.t.dtype
-    dt_arr = None if dt is None else jnp.asarray(dt, dtype)
-    if traced or n_steps is not None:
-        if n_steps is None:
-            raise ValueError(
-                "n_steps is required inside jit/grad/vmap: compute it outside with "
-                "jaxmpm.plan_steps(scene, params, state, t_end) and pass n_steps=..."
-            )
-        n_per_out = max(1, math.ceil(int(n_steps) / n_out))
-        t0 = state.t
-        times = t0 + (t_end - t0) * jnp.arange(1, n_out + 1, dtype=dtype) / n_out
-        report = (progress and not traced) if report is None else report
-        with _progress_bar(n_per_out * n_out, scene.name, report and not traced):
-            final, hist = _fixed_fn(scene, n_per_out, n_out, checkpoint, mesh, report)(params, state, times, dt_arr)
-            if report:
-                jax.block_until_ready(final)
-        history = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, hist)
-        return final, history
-    if restart_file is not None and not (isinstance(restart_every, int) and restart_every >= 1):
-        raise ValueError(f"restart_every = {restart_every!r} is invalid: allowed an integer >= 1 (chunks)")
-    return _host_driver(
-        scene,
-        params,
-        state,
-        t_end,
-        n_out,
-        dt_arr,
-        progress,
-        chunk,
-        restart_file=restart_file,
-        restart_every=restart_every,
-        debug=debug,
-        mesh=mesh,
-        plan=plan,
-    )
 
 
 # A chunk (default length) does at most this many particle-steps (and at least 10 steps): its first
@@ -586,7 +354,7 @@ class _StopRequest:
 def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
     """RuntimeWarning where n_out is more than the steps planned to t_end (each output interval
     takes at least one step: the run would take n_out shorter steps, and save n_out states)."""
-    steps = _planned_steps(scene, params, state, t_end, None if dt is None else float(dt), safety=1.0)
+    steps = planned_steps(scene, params, state, t_end, None if dt is None else float(dt), safety=1.0)
     if n_out > steps:
         warnings.warn(
             f"{scene.name}: n_out = {n_out} exceeds the about {steps} steps of the run to t_end = {t_end:g} s: "
@@ -597,7 +365,7 @@ def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
         )
 
 
-def _host_driver(
+def host_driver(
     scene,
     params,
     state,
@@ -616,15 +384,17 @@ def _host_driver(
     mesh=None,
     plan=None,
     restart_saved=False,
+    write_restart=None,
 ):
     """The adaptive host-driven run: jitted chunks until each output time (see the module
     docstring). plan: a `RunPlan` told the first chunk's run time (compilation excluded), which may
     refuse the run before anything is saved. restart_saved: `restart_file` already holds this run's
-    save (a resumed run): saves append to it from the first."""
+    save (a resumed run): saves append to it from the first. write_restart: the function that
+    writes the restart file (`jaxmpm.restart.save`), where restart_file is given."""
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
-        est = _planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
+        est = planned_steps(scene, params, state, times[0], None if dt is None else float(dt), safety=1.05)
         chunk = int(min(max(est, 1), 1000, max(10, CHUNK_PARTICLE_STEPS // max(int(np.shape(state.x)[0]), 1))))
     if start_out == 0 and mesh is None:
         _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt)
@@ -644,8 +414,6 @@ def _host_driver(
     health = _health_fn(scene)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(
             total=t_end - t0,
             unit="s",
@@ -660,9 +428,7 @@ def _host_driver(
 
     def save(next_out):
         if restart_file is not None:
-            from jaxmpm import restart
-
-            restart.save(
+            write_restart(
                 restart_file,
                 scene,
                 params,
@@ -707,8 +473,6 @@ def _host_driver(
                     found = first_failure(scene, params, before, stop, dt, chunk, mesh)
                     here = state
                     if found is None and mesh is not None:
-                        from jaxmpm.distributed import from_shards, mesh_size
-
                         here = from_shards(scene, state, mesh_size(mesh))
                     end = None if found is not None else find_nonfinite(scene, here)
                     raise FloatingPointError(f"{scene.name}: {_failure_text(found, n_chunks, chunk, end)}")
@@ -738,4 +502,4 @@ def _host_driver(
         request.restore()
         if bar is not None:
             bar.close()
-    return state, _stack(history)
+    return state, stack_states(history)

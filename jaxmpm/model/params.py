@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm.materials.models import check_constant, model_of
+from jaxmpm.model.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -83,8 +84,6 @@ jax.tree_util.register_dataclass(
 def default_params(scene, dtype=None) -> Params:
     """Params holding the scene's numbers. dtype: float64 when jax_enable_x64 is on, else float32
     (the two allowed; float64 needs jax_enable_x64)."""
-    from jaxmpm.scene import Scene
-
     if not isinstance(scene, Scene):
         raise TypeError(
             f"scene = {scene!r} is invalid: allowed a Scene (jaxmpm.load_scene(name) builds a built-in one)"

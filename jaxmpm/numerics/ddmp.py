@@ -26,10 +26,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.compile import bilinear_contraction
-from jaxmpm.fields import safe_div
-from jaxmpm.forms import transfer_form
-from jaxmpm.state import stencil_offsets
+from jaxmpm.model.state import particle_fields
+from jaxmpm.numerics.compile import bilinear_contraction
+from jaxmpm.numerics.forms import transfer_form
+from jaxmpm.numerics.safe import safe_div
+from jaxmpm.numerics.shapes import stencil_offsets
 
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
 _P2 = np.array([[1 / 3, 1 / 6], [1 / 6, 1 / 3]])
@@ -215,8 +216,6 @@ def fitting_window(scene, x, margin=2):
     the largest extent of any one field's particles plus `margin` cells on each side, at most the
     grid's cells. Pick the margin from how far the fields will spread; a field that outgrows the
     window costs that step the whole grid, never accuracy."""
-    from jaxmpm.state import particle_fields
-
     grid = scene.grid
     x = np.asarray(x)
     cell = np.floor((x - np.asarray(grid.origin)) / grid.h).astype(int)

@@ -22,10 +22,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.files import _atomic
 from jaxmpm.io import open_h5
-from jaxmpm.params import check_params, default_params
-from jaxmpm.state import check_state, init_state
+from jaxmpm.io.files import atomic_write
+from jaxmpm.io.scenefile import parse_toml, scene_from_dict, scene_to_toml
+from jaxmpm.model.params import check_params, default_params
+from jaxmpm.model.state import check_state, init_state
+from jaxmpm.run.driver import host_driver, stack_states
+from jaxmpm.version import __version__
 
 WHAT = "jaxmpm restart file (<name>.restart.h5, saved by jaxmpm.simulate(restart_file=...))"
 DRIVER = ("t0", "t_end", "n_out", "next_out", "chunk", "dt")
@@ -105,13 +108,10 @@ def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chu
     atomically (a temporary name renamed). append=True: `path` is an earlier save of this same run
     (same scene, params and driver settings, a prefix of `history`): only the outputs it lacks and
     the state are written, in place (the whole file where `path` is not such a save)."""
-    from jaxmpm import __version__
-    from jaxmpm.scenefile import scene_to_toml
-
     if append and _append(path, state, history, next_out):
         return
 
-    with _atomic(Path(path)) as tmp:
+    with atomic_write(Path(path)) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs.update(
                 {
@@ -230,8 +230,6 @@ def load(path) -> dict:
     `check_state`), or if a driver attribute is out of range (t0 < t_end, both finite; n_out >= 1;
     0 <= next_out <= n_out; chunk >= 1; dt > 0 or NaN); with float64 arrays, when 64-bit JAX is off.
     """
-    from jaxmpm.scenefile import parse_toml, scene_from_dict
-
     where = os.fspath(path)
     with _open(path) as f:
         try:
@@ -290,8 +288,6 @@ def resume(path, *, progress=True, restart_every=None):
     """Continue the run saved in restart file `path` to its end; returns (scene, params, final,
     history) as `simulate` would have (of a complete run, its saved results, with nothing run).
     restart_every: keep saving every so many chunks."""
-    from jaxmpm.simulate import _host_driver
-
     if not (restart_every is None or (isinstance(restart_every, (int, np.integer)) and restart_every >= 0)):
         raise ValueError(
             f"restart_every = {restart_every!r} is invalid: allowed None or an integer >= 0 "
@@ -299,11 +295,9 @@ def resume(path, *, progress=True, restart_every=None):
         )
     r = load(path)
     if r["next_out"] == r["n_out"]:  # the run is complete: its results, nothing to run
-        from jaxmpm.simulate import _stack
-
-        return r["scene"], r["params"], r["state"], _stack(r["history"])
+        return r["scene"], r["params"], r["state"], stack_states(r["history"])
     dt = None if r["dt"] is None else jnp.asarray(r["dt"], r["state"].t.dtype)
-    final, history = _host_driver(
+    final, history = host_driver(
         r["scene"],
         r["params"],
         r["state"],
@@ -318,5 +312,6 @@ def resume(path, *, progress=True, restart_every=None):
         restart_file=path if restart_every else None,
         restart_every=restart_every or 0,
         restart_saved=True,
+        write_restart=save,
     )
     return r["scene"], r["params"], final, history

@@ -25,11 +25,16 @@ import warnings
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxmpm.compile import jit
-from jaxmpm.params import Params, check_params
-from jaxmpm.simulate import _progress_bar, check_t_end, checkpoint_mode, count, plan_steps, seconds, simulate
-from jaxmpm.state import check_state
+from jaxmpm.model.params import Params, check_params
+from jaxmpm.model.state import check_state
+from jaxmpm.numerics.compile import jit
+from jaxmpm.run.distributed import to_host
+from jaxmpm.run.driver import checkpoint_mode, progress_bar
+from jaxmpm.run.planning import check_t_end, count, plan_steps, seconds
+from jaxmpm.run.simulate import simulate
+from jaxmpm.scenes import initial_state
 
 
 def stack(items):
@@ -105,8 +110,6 @@ def _shard(batch, n: int):
     devices = jax.devices()
     if len(devices) < 2:
         return batch, n
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
     m = -(-n // len(devices)) * len(devices)
     if m != n:
         batch = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], m - n, axis=0)]), batch)
@@ -143,7 +146,7 @@ def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, 
     if shard:
         (params_batch, state), m = _shard((params_batch, state), B)
     n_per_out = max(1, math.ceil(n_steps / n_out))
-    with _progress_bar(n_per_out * n_out, f"{scene.name} x{B}", progress):
+    with progress_bar(n_per_out * n_out, f"{scene.name} x{B}", progress):
         final, history = _members_fn(scene, float(t_end), n_out, n_steps, checkpoint, progress)(params_batch, state)
         if progress:
             jax.block_until_ready(final)
@@ -183,8 +186,6 @@ def ensemble(
     how many; up to REPLANS times, where every member got at least half way). Where n_steps was
     given, or still too few, a RuntimeError names the member and the time it reached, unless
     allow_short (then check final.t)."""
-    from jaxmpm.scenes import initial_state
-
     t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)
@@ -210,8 +211,6 @@ def ensemble(
     if not batched_state:
         state = jax.tree.map(lambda a: None if a is None else jnp.broadcast_to(a, (B,) + a.shape), state)
     final, history = _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, shard, B, progress)
-    from jaxmpm.distributed import to_host
-
     t0 = to_host(state.t)
     reached = to_host(final.t)  # gathered where the batch spans several processes
     short = np.flatnonzero(reached < t_end - 1e-6 * abs(t_end))

@@ -22,13 +22,15 @@ slice of each phase is static (`phase_slices`), fixed by the scene.
 
 from __future__ import annotations
 
-import functools
-import itertools
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from jaxmpm.materials.models import model_of
+from jaxmpm.model.params import check_params
+from jaxmpm.model.sampling import sample_phase
 
 
 @dataclass(frozen=True)
@@ -60,27 +62,6 @@ jax.tree_util.register_dataclass(
 )
 
 
-def lattice_cells(grid, phase) -> tuple[np.ndarray, np.ndarray]:
-    """(first, past-last) cell index per axis (d,) int64 of the grid cells the phase's bounding box
-    touches: `sample_phase` lays its lattice over them."""
-    lo = np.asarray(grid.origin, float)
-    c_lo = np.maximum(np.floor((np.asarray(phase.geometry.lo) - lo) / grid.h).astype(np.int64), 0)
-    c_hi = np.minimum(np.ceil((np.asarray(phase.geometry.hi) - lo) / grid.h).astype(np.int64), np.asarray(grid.cells))
-    return c_lo, c_hi
-
-
-@functools.lru_cache(maxsize=64)
-def sample_phase(grid, phase) -> np.ndarray:
-    """Particle positions (n, d) of a phase: ppc^d points per cell on a regular lattice,
-    kept where inside the geometry. Deterministic."""
-    h, ppc, d = grid.h, phase.ppc, grid.dim
-    lo = np.asarray(grid.origin)
-    c_lo, c_hi = lattice_cells(grid, phase)
-    axes = [lo[k] + (np.arange(c_lo[k] * ppc, c_hi[k] * ppc) + 0.5) * h / ppc for k in range(d)]
-    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, d)
-    return pts[phase.geometry.contains(pts)]
-
-
 def phase_slices(scene) -> tuple[slice, ...]:
     """Static slice of each phase's particles in the State arrays (scene order)."""
     out, start = [], 0
@@ -96,57 +77,12 @@ def particle_fields(scene) -> np.ndarray:
     return np.concatenate([np.full(len(sample_phase(scene.grid, p)), p.field, np.int32) for p in scene.phases])
 
 
-def check_sampling(scene) -> None:
-    """Raise ValueError if a phase has no particle, a particle lies where its stencil leaves the
-    grid, or bodies of one velocity field overlap with volume fractions that sum to more than 1
-    (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's
-    phases in one field share a region with fractions that sum to at most 1). Bodies of different
-    fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
-    from jaxmpm.planning import check_scene_memory
-
-    check_scene_memory(
-        scene, itemsize=4
-    )  # before sampling (grid at float32, the least a run holds): refused, not swapped
-    margin = 0.5 if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
-    hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
-    for p in scene.phases:
-        x = sample_phase(scene.grid, p)
-        total = np.full(len(x), float(p.fraction))
-        for q in scene.phases:
-            if q is not p and q.field == p.field:
-                inside = q.geometry.contains(x)
-                total = total + q.fraction * inside
-                if (total > 1 + 1e-9).any():
-                    i = int(np.argmax(total > 1 + 1e-9))
-                    raise ValueError(
-                        f"phase.{p.name}.geometry overlaps phase.{q.name}.geometry in velocity field {p.field} "
-                        f"(e.g. at {x[i].tolist()} m), where their volume fractions sum to {total[i]:g}: allowed "
-                        "bodies of one field that do not overlap, or phases of a mixture whose fractions sum to <= 1 "
-                        "where they share space (bodies of different fields may interpenetrate)"
-                    )
-        if len(x) == 0:
-            raise ValueError(
-                f"phase.{p.name}.geometry = {p.geometry.to_dict()} holds no particle: make it larger than a cell or raise ppc"
-            )
-        bad = np.any((x < lo) | (x > hi), axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise ValueError(
-                f"phase.{p.name}.geometry: particle {i} at {x[i].tolist()} lies outside the grid's usable "
-                f"region [{lo.tolist()}, {hi.tolist()}] m (shape {scene.shape!r} needs {margin} cell of margin)"
-            )
-
-
 def init_state(scene, params) -> State:
     """Initial State: particles sampled from each phase's geometry, at the rest pressure and internal
     energy of its model (zero but for gases and p0 of an EOS), with the phase's initial velocity;
     mass = rho0 * volume (rho0 from params). dtype follows params. For a built-in scene,
     `jaxmpm.initial_state` adds the initial fields its builder defines and a scene file cannot
     express (the vibrating bar's mode shape); `jaxmpm run` and `ensemble` start from that."""
-    from jaxmpm.materials.models import model_of
-    from jaxmpm.params import check_params
-
     check_params(scene, params)
     d, h = scene.dim, scene.grid.h
     dtype = jnp.result_type(params.cfl)
@@ -183,11 +119,6 @@ def init_state(scene, params) -> State:
         pressure=pres,
         damage=jnp.zeros(n, dtype),
     )
-
-
-def stencil_offsets(dim: int, width: int) -> np.ndarray:
-    """(width^dim, dim) integer offsets of a tensor-product stencil, first axis slowest."""
-    return np.array(list(itertools.product(range(width), repeat=dim)), dtype=np.int32).reshape(-1, dim)
 
 
 def check_state_dtypes(state: State) -> None:

@@ -1,5 +1,5 @@
 """Output: HDF5 snapshots with an XDMF index for ParaView, and text summaries (PNG plots:
-`jaxmpm.plot.plot_state`, also `jaxmpm.io.plot_state`; safe writing: `jaxmpm.files`).
+`jaxmpm.io.plot.plot_state`, also `jaxmpm.io.plot_state`; safe writing: `jaxmpm.io.files`).
 
 HDF5 layout written by `write` (SI units; every dataset carries a `units` attribute):
 
@@ -36,41 +36,14 @@ import h5py
 import jax
 import numpy as np
 
-from jaxmpm.files import _atomic, _make_parent, check_new, check_space  # noqa: F401  (io's API; restart, cli)
-from jaxmpm.state import State, phase_slices
+from jaxmpm.io.plot import plot_state  # noqa: F401  (io's API: jaxmpm.io.plot_state)
+from jaxmpm.io.files import atomic_write, make_parent, check_new, check_space  # noqa: F401  (io's API; restart, cli)
+from jaxmpm.io.schema import FIELDS, OPTIONAL, UNITS, check_scene, check_shapes, field_shapes, units  # noqa: F401  (io's API)
+from jaxmpm.io.scenefile import parse_toml, scene_from_dict, scene_to_toml
+from jaxmpm.model.state import State, phase_slices
+from jaxmpm.version import __version__
 
-UNITS = {
-    "x": "m",
-    "v": "m/s",
-    "volume": "m^3",
-    "mass": "kg",
-    "F": "1",
-    "stress": "Pa",
-    "energy": "J/kg",
-    "C": "1/s",
-    "eps_ps": "1",
-    "damage": "1",
-    "pressure": "Pa",
-}
-FIELDS = ("x", "v", "volume", "mass", "F", "stress", "energy")
-OPTIONAL = ("C", "eps_ps", "pressure", "damage")
 H5_SUFFIXES = (".h5", ".hdf5")
-
-
-def units(name: str, dim: int, axisymmetric: bool = False) -> str:
-    """SI units of a dataset, or of a total ('kinetic', 'internal', 'total_energy': J). Volumes,
-    masses and energy totals are per unit depth in 2D (plane strain: m^2, kg/m, J/m), per radian
-    in axisymmetric scenes (m^3/rad, kg/rad, J/rad) and per unit cross-section area in 1D
-    (m, kg/m^2, J/m^2), as in the State."""
-    if axisymmetric and name in ("kinetic", "internal", "total_energy", "volume", "mass"):
-        return {"volume": "m^3/rad", "mass": "kg/rad"}.get(name, "J/rad")
-    if name in ("kinetic", "internal", "total_energy"):
-        return {1: "J/m^2", 2: "J/m", 3: "J"}[dim]
-    if name == "volume":
-        return {1: "m", 2: "m^2", 3: "m^3"}[dim]
-    if name == "mass":
-        return {1: "kg/m^2", 2: "kg/m", 3: "kg"}[dim]
-    return UNITS[name]
 
 
 # ----------------------------------------------------------------------------------- safe writing
@@ -95,50 +68,6 @@ def _h5_path(path) -> Path:
             f"path = {os.fspath(path)!r} is invalid: allowed a file name ending in {' or '.join(H5_SUFFIXES)}"
         )
     return path
-
-
-def _check_scene(scene) -> None:
-    from jaxmpm.scene import Scene
-
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene = {type(scene).__name__} is invalid: allowed a jaxmpm.Scene")
-
-
-def field_shapes(scene) -> dict:
-    """{field: shape} of one State of `scene` (no time axis): x, v (n, d); mass, volume, energy,
-    eps_ps, pressure, damage (n,); F, stress (n, md, md) with md = scene.material_dim; C (n, d, d)."""
-    n, d, md = phase_slices(scene)[-1].stop, scene.dim, scene.material_dim
-    return {
-        "x": (n, d),
-        "v": (n, d),
-        "volume": (n,),
-        "mass": (n,),
-        "F": (n, md, md),
-        "stress": (n, md, md),
-        "energy": (n,),
-        "C": (n, d, d),
-        "eps_ps": (n,),
-        "pressure": (n,),
-        "damage": (n,),
-    }
-
-
-def _check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
-    """ValueError naming the first field of `fields` ({name: array}) whose shape is not the scene's
-    (with the leading axes `lead`, e.g. (n_times,)), or that is not a floating-point array."""
-    n = phase_slices(scene)[-1].stop
-    for name, shape in field_shapes(scene).items():
-        if name not in fields:
-            continue
-        a = fields[name]
-        need = lead + shape
-        if tuple(a.shape) != need:
-            raise ValueError(
-                f"{what}.{name} has shape {tuple(a.shape)}: the scene {scene.name!r} has {n} particles "
-                f"in {scene.dim}D and needs {need}"
-            )
-        if a.dtype.kind != "f":
-            raise ValueError(f"{what}.{name} has dtype {a.dtype}: allowed floating-point numbers")
 
 
 # ----------------------------------------------------------------------------------- write
@@ -189,12 +118,10 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
     and not `overwrite`, if either is a directory, or if a folder of `path` is a file; ValueError
     if the history is not a State or any of its fields does not fit the scene.
     """
-    import jaxmpm
-
     h5 = _h5_path(path)
     xdmf = xdmf_path(h5)
     check_new(h5, xdmf, overwrite=overwrite)  # and neither is a directory, even with overwrite
-    _check_scene(scene)
+    check_scene(scene)
     data = _host_history(history)
     slices = phase_slices(scene)
     n, d = data["x"].shape[1], data["x"].shape[2]
@@ -210,15 +137,15 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
             f"{n_times} output times (history.x has shape {data['x'].shape}) and needs ({n_times},) "
             "floating-point times (s)"
         )
-    _check_shapes(scene, data, "history", (n_times,))
-    _make_parent(h5)
+    check_shapes(scene, data, "history", (n_times,))
+    make_parent(h5)
     # both renamed only once both are written, the .h5 first: should that rename fail, no new
     # .xdmf points into a file that is not there
-    with _atomic(xdmf) as tmp_xdmf, _atomic(h5) as tmp_h5:
+    with atomic_write(xdmf) as tmp_xdmf, atomic_write(h5) as tmp_h5:
         with h5py.File(tmp_h5, "w") as f:
             f.attrs.update(
                 {
-                    "jaxmpm_version": jaxmpm.__version__,
+                    "jaxmpm_version": __version__,
                     "dtype": str(data["x"].dtype),
                     "dim": d,
                     "n_out": len(data["t"]) - 1,
@@ -227,7 +154,7 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
                     "phases": ",".join(scene.phase_names()),
                 }
             )
-            f.create_dataset("scene", data=jaxmpm.scene_to_toml(scene))
+            f.create_dataset("scene", data=scene_to_toml(scene))
             if params is not None:
                 for kp, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
                     ds = f.create_dataset(f"params/{_key_path(kp)}", data=np.asarray(leaf))
@@ -391,8 +318,6 @@ def read(path):
     with a leading time axis (t (n_times,) s; x (n_times, N, d) m; ...), phases in scene order.
     FileNotFoundError if `path` does not exist; ValueError naming the file and what is missing
     or wrong if it is not a complete output file (or does not fit its own /scene)."""
-    from jaxmpm.scenefile import parse_toml, scene_from_dict
-
     where = os.fspath(path)
     with _open(path) as f:
         try:
@@ -434,8 +359,6 @@ def read(path):
 def summary(path) -> str:
     """Text summary of a file written by `write`: scene, output times, phases with particle counts,
     total mass and kinetic energy at the first and last output. Errors as `read`."""
-    from jaxmpm.scenefile import parse_toml
-
     where = os.fspath(path)
     with _open(path) as f:
         a = f.attrs
@@ -487,6 +410,3 @@ def summary(path) -> str:
         f"{'kinetic (' + units('kinetic', dim, axi) + ')':<22}{rows[0][1]:>14.6g}{rows[1][1]:>14.6g}",
     ]
     return "\n".join(lines)
-
-
-from jaxmpm.plot import plot_state  # noqa: E402,F401  (io's API: jaxmpm.io.plot_state; plot.py reads io's checks)

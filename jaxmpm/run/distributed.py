@@ -34,9 +34,11 @@ import functools
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
-from jaxmpm.state import State, phase_slices
+from jaxmpm.model.state import State, phase_slices
 from jaxmpm.step import make_step
 
 AXIS = "particles"
@@ -68,8 +70,6 @@ def to_host(tree):
 
     def host(a):
         if isinstance(a, jax.Array) and not a.is_fully_addressable:
-            from jax.experimental import multihost_utils
-
             return np.asarray(multihost_utils.process_allgather(a, tiled=True))
         return np.asarray(a)
 

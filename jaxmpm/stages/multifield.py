@@ -4,7 +4,7 @@ V_p S_np averages of the continuity form), the interface forces (E13), the conti
 volume rate (E7, the transpose of E13) and the implicit exchange (E3).
 
 Shapes: N particles, K velocity fields, n_nodes nodes per field, d dimensions; `lay` is a
-jaxmpm.step.Layout. SI units.
+jaxmpm.stages.layout.Layout. SI units.
 """
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm import ddmp, fields
-from jaxmpm.constitutive import bulk_modulus_and_wave_speed, pressure, pressure_factor
-from jaxmpm.nodal import node_volume, particle_radius, pressure_parts, scatter_named
-from jaxmpm.transfer import interpolate
+from jaxmpm.numerics import ddmp
+from jaxmpm.stages import fields
+from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, pressure, pressure_factor
+from jaxmpm.stages.nodal import node_volume, particle_radius, pressure_parts, scatter_named
+from jaxmpm.numerics.transfer import interpolate
 
 
 def phase_pressure_and_compressibility(lay, params, state):

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 
+import jax
 import numpy as np
 
-from jaxmpm.params import check_params
-from jaxmpm.state import check_state, lattice_cells
+from jaxmpm.model.memory import check_run_memory, run_memory, size_text
+from jaxmpm.model.params import check_params
+from jaxmpm.model.state import check_state, phase_slices
 from jaxmpm.step import cfl_time_step
 
 
@@ -88,62 +91,6 @@ def check_dt(scene, params, state, dt) -> None:
         )
 
 
-NUMBERS_PER_NODE = 16  # a lower bound: a step holds far more per node and velocity field than this
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available to new allocations (Linux /proc/meminfo), or None where unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
-def check_memory(scene, state) -> None:
-    """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
-    numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
-    guess (a larger grid can still run out of memory later)."""
-    check_scene_memory(scene, np.asarray(state.x).dtype.itemsize)
-
-
-def lattice_points(grid, phase) -> int:
-    """The number of lattice points `state.sample_phase` lays over the phase's bounding box (ppc^d per
-    cell of the grid that the box touches), before it keeps those inside the geometry."""
-    c_lo, c_hi = lattice_cells(grid, phase)
-    return math.prod(max(int(b - a), 0) * phase.ppc for a, b in zip(c_lo, c_hi))
-
-
-def check_scene_memory(scene, itemsize: int = 8) -> None:
-    """ValueError before particles are sampled where the grid (as `check_memory`) or a phase's
-    particle lattice cannot fit in the memory available: the lattice's positions alone, d numbers
-    per point, are less than sampling holds, so a refusal is certain, not a guess."""
-    avail = available_memory()
-    if avail is None:
-        return
-    nodes = math.prod(c + 1 for c in scene.grid.cells)
-    need = nodes * scene.n_fields * NUMBERS_PER_NODE * itemsize
-    if need > avail:
-        raise ValueError(
-            f"grid.cells = {list(scene.grid.cells)} is invalid: its {nodes:,} nodes x {scene.n_fields} velocity "
-            f"field(s) need more than {need / 2**30:.1f} GiB of memory and {avail / 2**30:.1f} GiB are "
-            "available (allowed a smaller grid: fewer cells, or a larger h with --opt resolution / grid.h)"
-        )
-    for phase in scene.phases:
-        points = lattice_points(scene.grid, phase)
-        need = points * scene.dim * 8  # sampled in float64 on the host
-        if need > avail:
-            raise ValueError(
-                f"phase.{phase.name}.ppc = {phase.ppc} is invalid with grid.h = {scene.grid.h:g} m: sampling "
-                f"lays {points:,} particle positions over the phase's bounding box, more than "
-                f"{need / 2**30:.1f} GiB of memory where {avail / 2**30:.1f} GiB are available (allowed fewer "
-                "particles: a smaller ppc, or a larger h with --opt resolution / grid.h)"
-            )
-
-
 def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """Number of scan steps that reach t_end (s): (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
@@ -151,10 +98,10 @@ def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     as `n_steps`."""
     check_params(scene, params)
     check_state(scene, state)
-    return _planned_steps(scene, params, state, t_end, dt, safety)
+    return planned_steps(scene, params, state, t_end, dt, safety)
 
 
-def _planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
+def planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     """`plan_steps` for params and state already checked (the host driver's, whose state may span
     several processes, where check_state cannot read it)."""
     span = check_t_end(t_end, state.t) - float(state.t)
@@ -216,8 +163,6 @@ def flight_warnings(scene, state, t_end) -> list[str]:
     """A line for each phase whose fastest particle, unstopped, would leave the grid through a face
     without a wall before t_end (s): a speed out of scale with the grid and the run (1e5 m/s on
     a 1 m grid) fails after some steps; a collision may stop or turn it, so this is a warning."""
-    from jaxmpm.state import phase_slices
-
     x, v = np.asarray(state.x, float), np.asarray(state.v, float)
     lo, hi = np.asarray(scene.grid.origin, float), np.asarray(scene.grid.hi, float)
     free = _free_faces(scene)
@@ -255,8 +200,6 @@ MAX_MINUTES_ENV = "JAXMPM_MAX_MINUTES"
 
 def max_minutes(value=None) -> float:
     """The confirmation threshold in minutes: `value`, else $JAXMPM_MAX_MINUTES, else MAX_MINUTES."""
-    import os
-
     where = "max_minutes"
     if value is None:
         text = os.environ.get(MAX_MINUTES_ENV)
@@ -272,13 +215,6 @@ def max_minutes(value=None) -> float:
     return float(value)
 
 
-def _size(n: float) -> str:
-    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
-        if n >= scale:
-            return f"{n / scale:.3g} {unit}"
-    return f"{int(n)} B"
-
-
 def _duration(s: float) -> str:
     if s < 120:
         return f"{s:.3g} s"
@@ -287,39 +223,6 @@ def _duration(s: float) -> str:
     if s < 2 * 86400:
         return f"{s / 3600:.3g} h"
     return f"{s / 86400:.3g} days"
-
-
-def particle_numbers(scene) -> int:
-    """Numbers a State holds per particle at least: position and velocity (d each), mass, volume,
-    energy, deformation gradient and stress (d^2 each, 3^2 axisymmetric)."""
-    d = scene.dim
-    tensor = 9 if scene.axisymmetric else d * d
-    return 2 * d + 3 + 2 * tensor
-
-
-def run_memory(
-    scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None
-) -> tuple[int, int, int]:
-    """(total, per state, grid) bytes a host-driven run needs at least: the n_out + 1 states of its
-    history and the one it advances (`particle_numbers` per particle, or `state_bytes` each), and
-    the grid at NUMBERS_PER_NODE numbers per node and velocity field."""
-    per_state = particles * particle_numbers(scene) * itemsize if state_bytes is None else int(state_bytes)
-    grid = math.prod(c + 1 for c in scene.grid.cells) * scene.n_fields * NUMBERS_PER_NODE * itemsize
-    return (int(n_out) + 2) * per_state + grid, per_state, grid
-
-
-def check_run_memory(scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None) -> None:
-    """ValueError before a run (before its state is made, where `state_bytes` is None) whose history
-    and grid (`run_memory`) need more memory than is available."""
-    avail = available_memory()
-    total, per_state, grid = run_memory(scene, particles, n_out, itemsize, state_bytes)
-    if avail is not None and total > avail:
-        raise ValueError(
-            f"n_out = {n_out} with {particles:,} particles and grid.cells = {list(scene.grid.cells)} is "
-            f"invalid here: the run keeps {int(n_out) + 1} states of {_size(per_state)} and a grid of at least "
-            f"{_size(grid)}, {_size(total)} in all, more than the {_size(avail)} of memory available (allowed "
-            "fewer outputs, or fewer particles: a larger h with --opt resolution / grid.h)"
-        )
 
 
 class RunPlan:
@@ -338,7 +241,7 @@ class RunPlan:
         self.state_bytes = sum(int(np.prod(np.shape(a))) * np.dtype(a.dtype).itemsize for a in _leaves(state))
         self.memory = run_memory(scene, self.particles, self.n_out, self.itemsize, self.state_bytes)[0]
         compile_seconds()  # listening for compilations from here on
-        self.steps = _planned_steps(scene, params, state, t_end, dt, safety=1.0)
+        self.steps = planned_steps(scene, params, state, t_end, dt, safety=1.0)
         self.seconds = None
 
     def check_memory(self) -> None:
@@ -350,7 +253,7 @@ class RunPlan:
         return (
             f"plan: {self.particles:,} particles, {self.nodes:,} nodes x {s.n_fields} velocity field(s), about "
             f"{self.steps:,} steps to t = {self.t_end:g} s (at the initial CFL step), memory at least "
-            f"{_size(self.memory)}; time estimated after the first chunk (runs over {self.minutes:g} min "
+            f"{size_text(self.memory)}; time estimated after the first chunk (runs over {self.minutes:g} min "
             "need --yes)"
         )
 
@@ -376,8 +279,6 @@ class RunPlan:
 
 
 def _leaves(state):
-    import jax
-
     return [a for a in jax.tree.leaves(state) if a is not None]
 
 
@@ -393,7 +294,6 @@ def compile_seconds() -> float:
     """Seconds this process has spent tracing and compiling JAX functions since the first call
     (jax.monitoring's compile events): a chunk's wall time less the increase is its run time."""
     if not _COMPILE["listening"]:
-        import jax
 
         def listen(event, duration, **_):
             if event in _COMPILE_EVENTS:

@@ -1,0 +1,107 @@
+"""Layout: the static facts of a scene that the traced stages use (numpy / Python only), built
+once per step function by `Layout.of(scene)`; and the walls' velocity mask it holds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.model.state import phase_slices
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Static facts of a scene that the traced step uses (numpy / Python only)."""
+
+    scene: object
+    dim: int
+    n_fields: int
+    n_nodes: int
+    field: np.ndarray | None  # (N,) field index per particle, None with one field
+    slices: tuple  # per phase
+    bc_mask: np.ndarray | None  # (n_nodes, d) 1 where a velocity component is free, None if no walls
+    axis_name: str | None = None  # the mesh axis the particles are split along (jaxmpm.distributed), or None
+    phase: np.ndarray | None = None  # (N,) phase index per particle, None with one phase
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.scene.phases)
+
+    @property
+    def ambient_by_field(self) -> bool:
+        """Whether the closure's ambient pressure (E8, the common pressure of the OTHER phases)
+        can be formed per velocity field from the interface forces' nodal quantities: every field
+        holds one phase and the scene scatters those quantities. Otherwise it is formed per phase
+        from a scatter of its own (`multifield.ambient_pressure_by_phase`)."""
+        fields_of = [p.field for p in self.scene.phases]
+        return self.scene.has_interface_forces and len(set(fields_of)) == len(fields_of)
+
+    @staticmethod
+    def of(scene, shards=1, axis_name=None) -> "Layout":
+        """The Layout of `scene`; with shards > 1, of one of `shards` equal parts of every phase's
+        particles (ceil(n / shards) of a phase of n: the per-device block of `jaxmpm.distributed`),
+        whose sums and maxima over particles are completed across the mesh axis `axis_name`."""
+        K = scene.n_fields
+        local = [-(-(sl.stop - sl.start) // shards) for sl in phase_slices(scene)]
+        starts = np.concatenate([[0], np.cumsum(local)]).astype(int)
+        slices = tuple(slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:]))
+        field = np.concatenate([np.full(c, p.field, np.int32) for p, c in zip(scene.phases, local)]) if K > 1 else None
+        phase = (
+            np.concatenate([np.full(c, i, np.int32) for i, c in enumerate(local)]) if len(scene.phases) > 1 else None
+        )
+        return Layout(
+            scene=scene,
+            dim=scene.dim,
+            n_fields=K,
+            n_nodes=scene.grid.n_nodes,
+            field=field,
+            slices=slices,
+            bc_mask=boundary_mask(scene),
+            axis_name=axis_name,
+            phase=phase,
+        )
+
+    def particle_sum(self, x):
+        """A sum over particles completed across the devices: x is a scatter's nodal result
+        (K, n_nodes, C) or (K, n_cells) from this device's particles; the same shape back."""
+        return x if self.axis_name is None else jax.lax.psum(x, self.axis_name)
+
+    def particle_max(self, x):
+        """The maximum over particles of x (N,) or (N, ...), across the devices too: a scalar in
+        x's units (here m/s for the CFL speeds, kg for the mass floor)."""
+        m = jnp.max(x)
+        if self.axis_name is None:
+            return m
+        # pmax has no derivative: the value by pmax, the derivative that of the devices holding it
+        top = jax.lax.pmax(jax.lax.stop_gradient(m), self.axis_name)
+        here = m == top
+        return top + (
+            jax.lax.psum(jnp.where(here, m - jax.lax.stop_gradient(m), 0.0), self.axis_name)
+            / jax.lax.psum(here.astype(m.dtype), self.axis_name)
+        )
+
+
+def boundary_mask(scene) -> np.ndarray | None:
+    """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1."""
+    g, b = scene.grid, scene.boundary
+    on_axis = scene.axisymmetric and g.origin[0] == 0.0
+    if all(b.kind(k, s) == "free" for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
+        return None
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
+    mask = np.ones((g.n_nodes, g.dim))
+    for k in range(g.dim):
+        for side in ("lo", "hi"):
+            kind = b.kind(k, side)
+            if kind == "free":
+                continue
+            near = idx[:, k] < b.layers if side == "lo" else idx[:, k] > g.cells[k] - b.layers
+            if kind == "fixed":
+                mask[near, :] = 0.0
+            else:
+                mask[near, k] = 0.0
+    if on_axis:  # axis condition v_r = 0 at r = 0 (PHYSICS 2.3)
+        mask[idx[:, 0] == 0, 0] = 0.0
+    return mask
