@@ -20,7 +20,9 @@ import jax.numpy as jnp
 from jaxmpm.numerics import ddmp
 from jaxmpm.stages import fields
 from jaxmpm.stages.layout import Layout
-from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
+from jaxmpm.stages.closure import force_stress
+from jaxmpm.stages.constitutive import constitutive
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 from jaxmpm.stages.multifield import (
     ambient_pressure_by_phase,
     exchange_force,
@@ -289,7 +291,7 @@ def seed_update(lay, params, state, dt):
         )
     with jax.named_scope(STAGES[3]):  # 4
         p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
-        if scene.c_h is not None and lay.n_phases > 1 and not lay.ambient_by_field:
+        if scene.has_closure and lay.n_phases > 1 and not lay.ambient_by_field:
             p_amb = ambient_pressure_by_phase(lay, params, st, state)  # (E8)
         if scene.transfer == "musl":
             v = state.v + dt * interpolate(st, lay.field, a_n)

@@ -93,7 +93,7 @@ def debris_cloud(
     C_h = 1: 5.97, 6.13, 4.87), so the seed's trend (point 4 from 3.9 to 6.1 as C_h grows) is not
     reproduced. With fragmentation = 'plastic' (the seed's literal E5) the trend is there but the
     shock dies in the plate (C_h = 0.02, without the walls, resolution 1: 5.33, 5.33, 6.10;
-    resolution 2: 5.35, 5.35, 6.15): jaxmpm.stages.constitutive.fragmentation_gate says why.
+    resolution 2: 5.35, 5.35, 6.15): jaxmpm.stages.closure.fragmentation_gate says why.
     With fragmentation = 'tensile' (one field, 8x the initial CFL steps) C_h moves point 4 as in the
     seed at resolution 2: 4.28 (C_h = 0.02), 4.98, 5.50, 6.09 (C_h = 1), points 1 and 2 at 5.4-5.9;
     above resolution 2 single projectile particles on the axis move backward and point 4 does not
