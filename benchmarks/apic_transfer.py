@@ -47,7 +47,8 @@ def stencil_apic_update(lay, params, state, dt):
     from jaxmpm.stages import fields
     from jaxmpm.stages.constitutive import constitutive
     from jaxmpm.numerics.shapes import stencil
-    from jaxmpm.step import _apply_bc, _mass_floor, body_acceleration
+    from jaxmpm.stages.layout import apply_walls as _apply_bc
+    from jaxmpm.step import _mass_floor, body_acceleration
     from jaxmpm.numerics.transfer import gather, scatter, stencil_apply, stencil_outer
 
     scene = lay.scene
@@ -76,7 +77,8 @@ def offset_apic_update(lay, params, state, dt):
     (same physics as step.apic_update)."""
     from jaxmpm.stages import fields
     from jaxmpm.stages.constitutive import constitutive
-    from jaxmpm.step import _apply_bc, _mass_floor, body_acceleration
+    from jaxmpm.stages.layout import apply_walls as _apply_bc
+    from jaxmpm.step import _mass_floor, body_acceleration
     from jaxmpm.numerics.transfer import gather_by_offset, offset_stencil, scatter_by_offset
 
     d, h = lay.dim, lay.scene.grid.h

@@ -1,12 +1,12 @@
 """What the fluids' stabilisation costs per step, and what the step cost before it:
-  - the density diffusion of fluid phases (`jaxmpm.step.density_diffusion_rate`: one scatter of
+  - the density diffusion of fluid phases (`jaxmpm.stages.density_diffusion.density_diffusion_rate`: one scatter of
     two channels and one gather a step), on and off;
   - linear_fluid's pressure from the particle's volume ratio (now) or from det F of the forward
     update F = (I + dt L) F (before).
 Scenes: the dam break of tests/test_fluids.py (20 cells per a, Tait water) and the peers' mpm88
 (128^2, linear_fluid) with DDMP and 'musl', float32.
 
-"off" replaces `jaxmpm.step.diffused_particles` with one that marks no particle, "det F" the
+"off" replaces `jaxmpm.stages.grid_to_particle.diffused_particles` with one that marks no particle, "det F" the
 linear_fluid model with the one of before: both only for this measurement. Each configuration is
 compiled as a `jaxmpm.jit` loop of --steps steps, run once from the initial state, then --repeats
 times from that state, the configurations of a scene interleaved; the median and the fastest time
@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxmpm
-from jaxmpm import step as step_module
+from jaxmpm.stages import grid_to_particle as step_module
 from jaxmpm.materials import elastic, models
 
 HERE = Path(__file__).resolve().parent

@@ -6,7 +6,8 @@ Stages (PHYSICS 2.1, ARCHITECTURE): 1 shape functions, 2 particle to grid, 3 gri
 4 grid to particle with the seed's update and remap (or APIC), 5 constitutive update per phase.
 Everything an effect needs is chosen here, in Python, before tracing: an effect the scene does not
 name (gravity, damping, body force, DDMP, a wall) is not in the traced program at all. The
-coupling of velocity fields (E3, E6, E7, E13, E15) is in jaxmpm.stages.multifield; the nodal quantities
+coupling of velocity fields (E3, E6, E7, E13, E15) is in jaxmpm.stages.multifield, stage 4 (grid to
+particle) in jaxmpm.stages.grid_to_particle; the nodal quantities
 the stages share (scatters, stress force parts, DDMP operators) in jaxmpm.stages.nodal.
 """
 
@@ -17,20 +18,21 @@ from dataclasses import replace
 import jax
 import jax.numpy as jnp
 
-from jaxmpm.numerics import ddmp
 from jaxmpm.stages import fields
-from jaxmpm.stages.layout import Layout
-from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, constitutive, force_stress
+from jaxmpm.stages.grid_to_particle import grid_to_particle
+from jaxmpm.stages.layout import Layout, apply_walls
+from jaxmpm.stages.closure import force_stress
+from jaxmpm.stages.constitutive import constitutive
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 from jaxmpm.stages.multifield import (
-    ambient_pressure_by_phase,
     exchange_force,
     interface_force,
     phase_pressure_and_compressibility,
     pressure_moments,
 )
 from jaxmpm.stages.nodal import (
+    GridUpdate,
     ddmp_operators,
-    grid_shape,
     nodal_stress_force,
     particle_radius,
     scatter_named,
@@ -41,18 +43,12 @@ from jaxmpm.numerics.shapes import bspline2_stencil, ddmp_beta, stencil
 from jaxmpm.numerics.transfer import (
     gather,
     gather_by_offset,
-    interpolate,
     offset_stencil,
     scatter,
     scatter_by_window,
     stencil_apply,
     stencil_outer,
 )
-
-
-# ----------------------------------------------------------------------------------- helpers
-def _apply_bc(lay, v):
-    return v if lay.bc_mask is None else v * jnp.asarray(lay.bc_mask, v.dtype)
 
 
 @jax.custom_jvp
@@ -153,11 +149,11 @@ def particle_to_grid(lay, params, st, state, beta):
 def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
     internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
-    Returns (v_old, a, DDMP operators or None, the closure's ambient pressure (K, n_nodes) where
-    every field holds one phase and the fields have interface forces (else None: `seed_update`
-    forms it per phase, E8), the continuity form's volume rate v -> (N,)
+    Returns a `GridUpdate`: v_old, a, the DDMP operators or None, the closure's ambient pressure
+    (K, n_nodes) where every field holds one phase and the fields have interface forces (else None:
+    `grid_to_particle` forms it per phase, E8), the continuity form's volume rate v -> (N,)
     (`multifield.interface_force`) or None, the exchange's pair impulses (P, n_nodes, d) in N s
-    with scene.drag_heating (`fields.exchange`), else None)."""
+    with scene.drag_heating (`fields.exchange`), else None."""
     scene = lay.scene
     dtype = state.mass.dtype
     dg = None
@@ -165,7 +161,7 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
         with jax.named_scope("ddmp_operators"):
             dg = ddmp_operators(lay, st, g["vol"][..., 0], dtype, state.volume)
     m = g["m"]
-    v = _apply_bc(lay, fields.safe_div(g["mv"], m, m_min))
+    v = apply_walls(lay, fields.safe_div(g["mv"], m, m_min))
     with jax.named_scope("stress_force"):
         f = nodal_stress_force(lay, dg, g)
     p_amb, volume_rate = None, None
@@ -182,138 +178,15 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
-    a = _apply_bc(lay, a)
+    a = apply_walls(lay, a)
     impulses = None
     if scene.has_exchange:
         with jax.named_scope("exchange"):
             F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min, scene.drag_heating)
             if scene.drag_heating:
                 F, impulses = F
-        a = _apply_bc(lay, a + fields.safe_div(F, m, m_min))
-    return v, a, dg, p_amb, volume_rate, impulses
-
-
-def _with_hoop(lay, st, L, v, radius):
-    """Axisymmetric: L (N, 2, 2) of (r, z) -> (N, 3, 3) with L_thth = v_r(x_p) / r_p."""
-    if radius is None:
-        return L
-    v_r = interpolate(st, lay.field, v[..., :1])[:, 0]
-    L3 = jnp.zeros(L.shape[:-2] + (3, 3), L.dtype).at[:, :2, :2].set(L)
-    return L3.at[:, 2, 2].set(v_r / radius)
-
-
-def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=None, radius=None):
-    """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
-    (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators dg or the particle
-    volumes (N,) to build them) the blend (E12):
-    L_p = beta_p sum_i v_i (x) grad S_i(x_p) + (1 - beta_p) sum_j S_j(x_p) L-bar_j. Returns (N, d, d)."""
-    d = lay.dim
-    L = stencil_outer(gather(st, lay.field, v), st.dw)
-    if nodal_volume is None:
-        return _with_hoop(lay, st, L, v, radius)
-    beta = ddmp_beta(st.xi)
-    dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
-    Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(grid_shape(lay) + (d,)))
-    Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
-    return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)  # (E12)
-
-
-# The fluids' density diffusion: the rate delta c / h at which a fluid particle's specific volume
-# relaxes to its neighbours' average (`density_diffusion_rate`). delta = 0.1, the value of delta-SPH
-# (Antuono et al. 2010, Comput. Phys. Commun. 181, 532), whose density diffusion term this is.
-DENSITY_DIFFUSION = 0.1
-
-
-BAROTROPIC = ("linear_fluid", "tait", "linear")  # fluid models, and equations of state, whose p depends on rho alone
-
-
-def diffused_particles(lay):
-    """(N,) static bool: the particles of the barotropic fluid phases (`scene.is_fluid`, the model
-    or its equation of state in BAROTROPIC), which take the density diffusion with DDMP and the
-    'musl' update (not with the closure, E4, whose volume rate is its own), or None where no
-    particle does. DDMP's blend is what gives the particles of a cell different volume rates
-    (`density_diffusion_rate`). An equation of state with an energy term is left out: its contact
-    discontinuities (density jumps at one pressure) are not to be smoothed."""
-    from jaxmpm.materials.models import split_model
-    from jaxmpm.scene import is_fluid
-
-    scene = lay.scene
-
-    def barotropic(model):
-        return is_fluid(model) and (model in BAROTROPIC or split_model(model)[0] in BAROTROPIC)
-
-    if scene.shape != "ddmp" or scene.transfer != "musl" or scene.c_h is not None:
-        return None
-    on = [barotropic(scene.material(p).model) for p in scene.phases]
-    if not any(on):
-        return None
-    return np.concatenate([np.full(sl.stop - sl.start, o, bool) for o, sl in zip(on, lay.slices)])
-
-
-def phase_average(lay, st, volume, q):
-    """The volume-weighted nodal average of q (N,) over the particles of each phase, interpolated
-    back to the phase's particles: sum_n S_n(x_p) (sum_q V_q q_q S_nq) / (sum_q V_q S_nq), the sums
-    over the particles q of p's phase, in q's units. Exact for a linear q inside a phase; one-sided
-    at its boundary nodes (a free surface, an interface). The linear fit of E15 in its place,
-    exact there too, made the dam break non-finite within 300 steps: at nearly empty surface
-    nodes the fit extrapolates."""
-    g = lay.particle_sum(
-        scatter(
-            st, lay.phase, st.w[..., None] * jnp.stack([volume * q, volume], -1)[:, None, :], lay.n_phases, lay.n_nodes
-        )
-    )
-    q_n = fields.safe_div(g[..., :1], g[..., 1:], 1e-30 * lay.particle_max(volume))
-    return interpolate(st, lay.phase, q_n)[:, 0]
-
-
-def density_diffusion_rate(lay, params, st, state, fluid):
-    """(N,) 1/s: the volume rate that relaxes each fluid particle's specific volume u = V / m to
-    its phase's local average u-bar (`phase_average`) at the rate delta c / h, c the particle's sound
-    speed: (delta c / h) (u-bar / u - 1); 0 for the other particles. The density diffusion of
-    delta-SPH on the grid. A weakly compressible fluid's pressure is K times its volume strain, and
-    the grid sees a particle's volume only through its nodes' sums: volume errors that differ from
-    particle to particle within a cell (DDMP's blend gives particles of one cell different volume
-    rates where the flow is not linear) grow unchecked and show as pressure noise. The diffusion
-    damps them at the grid scale within a few h / c and leaves a linear field of u (a fluid at rest
-    under gravity) unchanged away from the phase's boundaries."""
-    u = state.volume / state.mass
-    u_bar = phase_average(lay, st, state.volume, u)
-    c = bulk_modulus_and_wave_speed(lay, params, state)[1]
-    rate = DENSITY_DIFFUSION * c / lay.scene.grid.h * (u_bar / u - 1)
-    return jnp.where(jnp.asarray(fluid), rate, 0.0)
-
-
-def velocity_gradient(lay, params, st, state, dt, m_min):
-    """Stage 4b of the 'seed' variants: remap at the new positions (with E14 between coupled
-    fields), then L_p (N, d, d) there."""
-    ddmp_on = lay.scene.shape == "ddmp"
-    vol_n = None
-    if ddmp_on or lay.scene.has_exchange:
-        vol_n = lay.particle_sum(
-            scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)
-        )[..., 0]
-    v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
-    return particle_velocity_gradient(
-        lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state)
-    )
-
-
-def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min, raw=False):
-    """Remap particle velocities v_p onto the nodes of stencil st: v_n = sum m_p v_p S_np / m_n,
-    walls applied; with several coupled fields the implicit exchange applied again (E14).
-    vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d); raw=True:
-    (that, the remapped velocity before E14)."""
-    w = st.w[..., None]
-    g = scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
-    v = v_raw = _apply_bc(lay, fields.safe_div(g["mv"], g["m"], m_min))
-    if lay.scene.has_exchange:  # (E14)
-        F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
-        # under lax.cond(dt > 0), like the exchange (at dt = 0 the update adds nothing): XLA keeps
-        # the updated v as one array where it fused its masks and divisions into DDMP's velocity
-        # gradient (E12) and repeated them for each of a cell's 16 outputs (the debris cloud's E12
-        # 0.40 -> 0.21 ms per step; its forward step and gradient 8-10% faster, interleaved)
-        v = jax.lax.cond(dt > 0, lambda: _apply_bc(lay, v + dt * fields.safe_div(F, g["m"], m_min)), lambda: v)
-    return (v, v_raw) if raw else v
+        a = apply_walls(lay, a + fields.safe_div(F, m, m_min))
+    return GridUpdate(v, a, dg, p_amb, volume_rate, impulses)
 
 
 def seed_update(lay, params, state, dt):
@@ -333,7 +206,6 @@ def seed_update(lay, params, state, dt):
         in dt (vibrating bar at CFL 0.02, 50 cells: 3.6e-7 m against 1.6e-8 m).
     """
     scene = lay.scene
-    d = lay.dim
     m_min = _mass_floor(lay, state)
     with jax.named_scope(STAGES[0]):  # 1
         st = stencil(scene, state.x)
@@ -349,43 +221,9 @@ def seed_update(lay, params, state, dt):
             g = tangent_fenced(g, dt > 0)
         acc_p = body_acceleration(lay, params, state)
     with jax.named_scope(STAGES[2]):  # 3
-        v_n, a_n, dg, p_amb_n, volume_rate, impulses = grid_acceleration(
-            lay, params, state, st, beta, g, acc_p, dt, m_min
-        )
+        grid = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
     with jax.named_scope(STAGES[3]):  # 4
-        p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
-        if scene.c_h is not None and lay.n_phases > 1 and not lay.ambient_by_field:
-            p_amb = ambient_pressure_by_phase(lay, params, st, state)  # (E8)
-        if scene.transfer == "musl":
-            v = state.v + dt * interpolate(st, lay.field, a_n)
-            vol_n = g["vol"][..., 0] if "vol" in g else None
-            with jax.named_scope("remap"):
-                v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min, raw=impulses is not None)
-            energy = state.energy
-            if impulses is not None:  # the drag's work as heat (drag_heating), by mass: sum_p m_p de_p = sum_n Q_nk
-                v_r, v_raw = v_r
-                m = g["m"][..., 0]
-                heat = fields.drag_heat(impulses, m, v_raw, m_min)
-                energy = energy + interpolate(st, lay.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
-            x = state.x + dt * interpolate(st, lay.field, v_r)
-            with jax.named_scope("velocity_gradient"):
-                L = particle_velocity_gradient(
-                    lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state)
-                )
-                if scene.continuity_form == "transport":  # (E7)
-                    extra = volume_rate(v_r)
-                    L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-                fluid = diffused_particles(lay)
-                if fluid is not None:
-                    rate = density_diffusion_rate(lay, params, st, state, fluid)
-                    L = L + (rate / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-            moved = replace(state, x=x, v=v, energy=energy)
-        else:
-            half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
-            va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
-            moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
-            with jax.named_scope("velocity_gradient"):
-                L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
+        moved, L, p_amb = grid_to_particle(lay, params, state, st, beta, g, grid, dt, m_min)
     with jax.named_scope(STAGES[4]):  # 5
         # L's cotangent as one array: XLA had fused its computation from the constitutive
         # update's transpose into each consumer in the velocity gradient's transpose, repeated per
@@ -426,7 +264,7 @@ def apic_update(lay, params, state, dt):
         v_n = fields.safe_div(g[..., 1:], g[..., :1], m_min)
         if scene.damping is not None:
             v_n = v_n * jnp.exp(-params.damping * dt)
-        v_n = _apply_bc(lay, v_n)  # (1, n_nodes, d)
+        v_n = apply_walls(lay, v_n)  # (1, n_nodes, d)
     with jax.named_scope(STAGES[3]):
         v, B = _apic_gather_one_pass(st, v_n) if one_pass else _apic_gather_by_offset(st, v_n[0].T)
         C = dinv * B

@@ -139,12 +139,8 @@ def test_e8_relaxation_rate_is_the_formula_with_its_strain_clipped_at_one_e_fold
     (1 - exp(-dt / tau)) / dt, by hand from the model's K and c; where |p - p_amb| / K exceeds
     EQUILIBRATING_STRAIN_MAX = 1 (here 7.5 either way, in vacuum) the strain is clipped to +-1,
     so the volume changes by at most one e-fold per relaxation time."""
-    from jaxmpm.stages.constitutive import (
-        EQUILIBRATING_STRAIN_MAX,
-        bulk_modulus_and_wave_speed,
-        closure_alpha,
-        material_volume_rate,
-    )
+    from jaxmpm.stages.closure import EQUILIBRATING_STRAIN_MAX, closure_alpha, material_volume_rate
+    from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
     from jaxmpm.stages.layout import Layout
 
     scene = block(c_h=0.01)
@@ -376,10 +372,7 @@ def test_a_bar_pulled_in_tension_fragments_on_the_time_scale_c_h_sets():
         p = np.array([np.asarray(f.pressure)[mid].mean() for f in frames])
         D = np.array([np.asarray(f.damage)[mid].mean() for f in frames])
         ap = np.array(
-            [
-                np.asarray(jaxmpm.stages.constitutive.pressure_factor(lay, params, f) * f.pressure)[mid].mean()
-                for f in frames
-            ]
+            [np.asarray(jaxmpm.stages.closure.pressure_factor(lay, params, f) * f.pressure)[mid].mean() for f in frames]
         )
         ode = closure_ode(c_h, t_out)
         np.testing.assert_allclose(D, ode[:, 1], atol=0.005)  # measured <= 0.001

@@ -18,7 +18,7 @@ import jaxmpm
 from jaxmpm import diagnostics, features
 from jaxmpm.materials.library import library_constants
 from jaxmpm.scenes.impact import IMPACT_SPEED, chamber_air
-from jaxmpm.state import phase_slices
+from jaxmpm.model.state import phase_slices
 
 LOW, HIGH = 1e4, 1.05e6  # Pa: the seed's chambers, 0.1 and 10.5 bar
 
@@ -60,7 +60,7 @@ def test_chamber_layout_air_in_its_own_field_and_vacuum_unchanged():
         air = s.material(s.phases[2])
         assert dict(air.constants)["p0"] == HIGH
         assert dict(air.constants)["rho0"] == pytest.approx(HIGH / (c["R"] * c["T_room"]), rel=1e-12)  # 12.69 kg/m^3
-        assert jaxmpm.scenefile.scene_from_toml(jaxmpm.scene_to_toml(s)) == s
+        assert jaxmpm.io.scenefile.scene_from_toml(jaxmpm.scene_to_toml(s)) == s
     # the air fills the grid around the sphere and the plate but for the sphere's shadow (r < R, from
     # the plate to the sphere's equator): the phases' volumes add up to the grid's less the shadow's
     s = cloud(chamber_pressure=LOW)

@@ -772,7 +772,7 @@ def test_plane_strain_impact_with_the_full_library_model_and_the_closure(fragmen
     np.testing.assert_allclose(p1, p0, rtol=0, atol=1e-12 * np.abs(p0).max())
     for k in range(len(hist.t)):
         assert energy(jax.tree.map(lambda a: a[k], hist)) == pytest.approx(energy(s0), rel=0.01)
-    alpha = np.asarray(jaxmpm.stages.constitutive.closure_alpha(jaxmpm.stages.layout.Layout.of(scene), params, final))
+    alpha = np.asarray(jaxmpm.stages.closure.closure_alpha(jaxmpm.stages.layout.Layout.of(scene), params, final))
     eps, damage = np.asarray(final.eps_ps), np.asarray(final.damage)
     assert eps.max() > 0.5
     print(
@@ -831,7 +831,7 @@ def test_mie_gruneisen_in_strong_expansion_tends_to_the_gas_limit():
 def test_failed_material_has_no_shear_wave_speed():
     """A failed particle (damage 1) moves sound at the bulk speed sqrt(K / rho); an intact one
     adds 4 G / (3 rho)."""
-    from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed
+    from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
     from jaxmpm.stages.layout import Layout
 
     scene = Scene(

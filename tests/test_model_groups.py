@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import jaxmpm
-from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, constitutive, model_groups
+from jaxmpm.stages.constitutive import constitutive
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, model_groups
 from jaxmpm.materials import MatPoint, library_material, model_of
 from jaxmpm.model.scene import Box, Grid, Phase, Scene
 from jaxmpm.stages.layout import Layout
@@ -54,7 +55,7 @@ def per_phase_reference(lay, params, state, L, dt):
     mp = MatPoint(
         state.F,
         state.stress,
-        jaxmpm.stages.constitutive.pressure(lay, state),
+        jaxmpm.stages.phase_models.pressure(lay, state),
         state.energy,
         state.eps_ps,
         state.damage,

@@ -9,7 +9,8 @@ import jaxmpm
 from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
 from jaxmpm.numerics.shapes import stencil
 from jaxmpm.stages.layout import Layout
-from jaxmpm.step import _apply_bc, particle_velocity_gradient
+from jaxmpm.stages.grid_to_particle import particle_velocity_gradient
+from jaxmpm.stages.layout import apply_walls as _apply_bc
 from jaxmpm.numerics.transfer import scatter_weighted
 
 

@@ -264,7 +264,7 @@ def scene_to_dict(scene: Scene) -> dict:
         e["interface_forces"] = list(scene.interface_forces) if scene.interface_forces else False
     if scene.continuity != "auto":
         e["continuity"] = scene.continuity
-    if scene.c_h is not None and scene.fragmentation != "failed":
+    if scene.has_closure and scene.fragmentation != "failed":
         e["fragmentation"] = scene.fragmentation
     if scene.artificial_viscosity is not None:
         e["artificial_viscosity"] = list(scene.artificial_viscosity)

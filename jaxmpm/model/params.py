@@ -112,7 +112,7 @@ def default_params(scene, dtype=None) -> Params:
         drag_coefficient=f(scene.drag if scene.drag is not None else 0.0),
         drag_length=f(scene.drag_length if scene.drag_length is not None else scene.grid.h),
         linear_drag=f(scene.linear_drag if scene.linear_drag is not None else 0.0),
-        c_h=f(scene.c_h if scene.c_h is not None else 1.0),
+        c_h=f(scene.c_h if scene.has_closure else 1.0),
         av_linear=f(scene.viscosity[0] if scene.viscosity is not None else 0.0),
         av_quadratic=f(scene.viscosity[1] if scene.viscosity is not None else 0.0),
     )
@@ -212,7 +212,7 @@ def check_params(scene, params: Params) -> None:
     # the numbers of the effects below are read only with their effect: a value other than the
     # placeholder default_params gives them (e.g. a sweep of C_h) would change nothing
     for name, off, placeholder, why in (
-        ("c_h", scene.c_h is None, 1.0, "no closure (effects.c_h)"),
+        ("c_h", not scene.has_closure, 1.0, "no closure (effects.c_h)"),
         ("drag_length", scene.drag is None, scene.grid.h, "no drag"),
         ("gravity_ramp", scene.gravity is None, 0.0, "no gravity effect"),
         ("av_linear", scene.viscosity is None, 0.0, "no artificial viscosity"),

@@ -29,15 +29,22 @@ def sample_phase(grid, phase) -> np.ndarray:
     return pts[phase.geometry.contains(pts)]
 
 
+def usable_region(scene) -> tuple[float, np.ndarray, np.ndarray]:
+    """(margin, lo, hi): the part of the grid where a particle's stencil stays on the grid, lo and hi
+    (d,) m, `margin` cells in from each face (half a cell for the quadratic B-spline, else none)."""
+    margin = 0.5 if scene.shape == "bspline2" else 0.0
+    lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
+    hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
+    return margin, lo, hi
+
+
 def check_sampling(scene) -> None:
     """Raise ValueError if a phase has no particle, a particle lies where its stencil leaves the
     grid, or bodies of one velocity field overlap with volume fractions that sum to more than 1
     (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's
     phases in one field share a region with fractions that sum to at most 1). Bodies of different
     fields may interpenetrate: each field is its own continuum, coupled by the volume fractions."""
-    margin = 0.5 if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
-    hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
+    margin, lo, hi = usable_region(scene)
     for p in scene.phases:
         x = sample_phase(scene.grid, p)
         total = np.full(len(x), float(p.fraction))

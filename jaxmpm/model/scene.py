@@ -336,7 +336,7 @@ class Scene:
                 object.__setattr__(self, name, val)
         if self.drag_length is not None and self.drag is None:
             _fail("effects.drag_length", self.drag_length, "only with effects.drag (the length of its drag law, E3)")
-        if self.c_h is not None:
+        if self.has_closure:
             ch = _float("effects.c_h", self.c_h)
             if not ch > 0:
                 _fail("effects.c_h", ch, "> 0")
@@ -397,7 +397,7 @@ class Scene:
             )
         if self.fragmentation not in FRAGMENTATION:
             _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
-        if self.c_h is not None and self.transfer == "apic":
+        if self.has_closure and self.transfer == "apic":
             _fail("effects.c_h", self.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
         if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
             _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
@@ -470,6 +470,12 @@ class Scene:
     def has_exchange(self) -> bool:
         """Whether the step traces the exchange force (E3): several fields and a drag term."""
         return self.n_fields > 1 and (self.drag is not None or self.linear_drag is not None)
+
+    @property
+    def has_closure(self) -> bool:
+        """Whether the continuous-to-disperse closure (E4, E5, E8) is on: effects.c_h given. The one
+        switch of jaxmpm.stages.closure."""
+        return self.c_h is not None
 
     @property
     def has_interface_forces(self) -> bool:

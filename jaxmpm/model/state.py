@@ -30,7 +30,7 @@ import numpy as np
 
 from jaxmpm.materials.models import model_of
 from jaxmpm.model.params import check_params
-from jaxmpm.model.sampling import sample_phase
+from jaxmpm.model.sampling import sample_phase, usable_region
 
 
 @dataclass(frozen=True)
@@ -225,9 +225,7 @@ def check_state(scene, state: State) -> None:
             f"state.F of particle {i} (phase {phase_of(i)!r}) has det F = {float(det[i]):.6g}: allowed "
             "det F > 0 (a deformation gradient keeps volume positive)"
         )
-    margin = 0.5 if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin * scene.grid.h
-    hi = np.asarray(scene.grid.hi) - margin * scene.grid.h
+    _, lo, hi = usable_region(scene)
     x = np.asarray(state.x)
     out = np.any((x < lo) | (x > hi), axis=1)
     if out.any():

@@ -27,6 +27,7 @@ import numpy as np
 from jax.experimental import checkify
 from tqdm.auto import tqdm
 
+from jaxmpm.model.sampling import usable_region
 from jaxmpm.model.state import phase_slices
 from jaxmpm.numerics.compile import jit
 from jaxmpm.run.distributed import from_shards, make_sharded_step, mesh_size
@@ -57,6 +58,16 @@ def _chunk_fn(scene, length, mesh=None):
     return run
 
 
+CHECKED_FIELDS = ("x", "v", "stress", "volume", "energy")  # the particle fields a run checks are finite
+
+
+def finite_and_inside(state, lo, hi):
+    """(finite, inside): whether every particle's CHECKED_FIELDS are finite, and every particle lies
+    in the grid's usable region [lo, hi] (`usable_region`); two boolean scalars, traceable."""
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in CHECKED_FIELDS]))
+    return finite, jnp.all((state.x >= lo) & (state.x <= hi))
+
+
 @functools.lru_cache(maxsize=8)
 def _checked_chunk_fn(scene, length):
     """The chunk of `_chunk_fn` under `jax.experimental.checkify` (simulate(..., debug=True)): every
@@ -64,19 +75,15 @@ def _checked_chunk_fn(scene, length):
     makes a NaN is reported (nan_checks) with its source line. Returns run -> (error, state); the
     first failure names the step of the chunk and the time."""
     step = make_step(scene)
-    margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin
-    hi = np.asarray(scene.grid.hi) - margin
+    _, lo, hi = usable_region(scene)
 
     def run(params, state, t_stop, dt):
         def body(s, i):
             new = step(params, s, t_stop, dt)
-            finite = jnp.all(
-                jnp.stack([jnp.all(jnp.isfinite(getattr(new, n))) for n in ("x", "v", "stress", "volume", "energy")])
-            )
+            finite, inside = finite_and_inside(new, lo, hi)
             checkify.check(finite, "step {i} of the chunk (t = {t} s): a particle field is not finite", i=i, t=new.t)
             checkify.check(
-                jnp.all((new.x >= lo) & (new.x <= hi)),
+                inside,
                 "step {i} of the chunk (t = {t} s): a particle left the grid",
                 i=i,
                 t=new.t,
@@ -231,16 +238,11 @@ def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
 def _health_fn(scene):
     """Jitted on-device check of a chunk's result: (everything finite and inside the grid, CFL dt).
     Only these two scalars cross to the host each chunk; arrays do only when a check fails."""
-    margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin
-    hi = np.asarray(scene.grid.hi) - margin
+    _, lo, hi = usable_region(scene)
 
     @jit
     def health(params, state):
-        ok = jnp.all(
-            jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in ("x", "v", "stress", "volume", "energy")])
-        )
-        inside = jnp.all((state.x >= lo) & (state.x <= hi))
+        ok, inside = finite_and_inside(state, lo, hi)
         return ok & inside, cfl_time_step(scene, params, state)
 
     return health
@@ -253,15 +255,13 @@ def _phase_of(scene, i):
 def find_nonfinite(scene, state):
     """None if every particle value is finite and every particle inside the grid, else a message
     naming the field, the phase and the particle index."""
-    for name in ("x", "v", "stress", "volume", "energy"):
+    for name in CHECKED_FIELDS:
         a = np.asarray(getattr(state, name))
         bad = ~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
             return f"non-finite {name} at t = {float(state.t):.6g} s: phase {_phase_of(scene, i)!r}, particle {i}"
-    margin = 0.5 * scene.grid.h if scene.shape == "bspline2" else 0.0
-    lo = np.asarray(scene.grid.origin) + margin
-    hi = np.asarray(scene.grid.hi) - margin
+    _, lo, hi = usable_region(scene)
     x = np.asarray(state.x)
     out = np.any((x < lo) | (x > hi), axis=1)
     if out.any():

@@ -105,3 +105,9 @@ def boundary_mask(scene) -> np.ndarray | None:
     if on_axis:  # axis condition v_r = 0 at r = 0 (PHYSICS 2.3)
         mask[idx[:, 0] == 0, 0] = 0.0
     return mask
+
+
+def apply_walls(layout, v):
+    """Nodal velocities or accelerations v (K, n_nodes, d) with the walls' components zeroed
+    (`Layout.bc_mask`); v itself where the scene has no walls."""
+    return v if layout.bc_mask is None else v * jnp.asarray(layout.bc_mask, v.dtype)

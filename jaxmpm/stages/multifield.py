@@ -15,19 +15,16 @@ import numpy as np
 
 from jaxmpm.numerics import ddmp
 from jaxmpm.stages import fields
-from jaxmpm.stages.constitutive import bulk_modulus_and_wave_speed, pressure, pressure_factor
+from jaxmpm.stages.closure import grid_pressure
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 from jaxmpm.stages.nodal import node_volume, particle_radius, pressure_parts, scatter_named
 from jaxmpm.numerics.transfer import interpolate
 
 
 def phase_pressure_and_compressibility(lay, params, state):
-    """(N,) particle pressure (Pa) and compressibility kappa = 1 / K (1/Pa). With the closure (E8)
-    the pressure the grid sees, alpha p: a fragmented material's pressure acts on no node through
-    its own stress, so it must not act through the common pressure either (E6, E13)."""
-    p = pressure(lay, state)
-    if lay.scene.c_h is not None:
-        p = pressure_factor(lay, params, state) * p
-    return p, 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
+    """(N,) particle pressure the grid sees (Pa; with the closure, `closure.grid_pressure`) and
+    compressibility kappa = 1 / K (1/Pa)."""
+    return grid_pressure(lay, params, state), 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
 
 
 def interface_force(lay, params, st, beta, state, g, dg, m_min):
@@ -54,7 +51,7 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
         mom, volume_rate = g["pm"], None
         I = interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
     p_amb = None
-    if lay.scene.c_h is not None and lay.ambient_by_field:
+    if lay.scene.has_closure and lay.ambient_by_field:
         p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, mom, dtype))
     return I, p_amb, volume_rate
 

@@ -8,6 +8,10 @@ jaxmpm.stages.layout.Layout. SI units.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
+
 import math
 
 import jax.numpy as jnp
@@ -102,3 +106,15 @@ def ddmp_operators(lay, st, nodal_volume, dtype, volume):
 def node_volume(lay, dtype):
     """(n_nodes,) the volume of each node's support, m^d (per radian if axisymmetric)."""
     return jnp.asarray(ddmp.node_support(lay.scene.grid, lay.scene.axisymmetric).reshape(-1), dtype)
+
+
+class GridUpdate(NamedTuple):
+    """What the grid stage (3) hands to the grid-to-particle stage (4). K velocity fields, n nodes,
+    d dimensions, N particles, P pairs of fields."""
+
+    v: jax.Array  # (K, n, d) nodal velocity before the update (walls applied), m/s
+    a: jax.Array  # (K, n, d) nodal acceleration (walls applied), m/s^2
+    ddmp: object  # the DDMP operators (`ddmp_operators`), or None without DDMP or interface forces
+    ambient_pressure: jax.Array | None  # (K, n) the closure's ambient pressure per field (E8), Pa, or None
+    volume_rate: object  # v (K, n, d) -> (N,) 1/s, the continuity form's volume rate (E7), or None
+    impulses: jax.Array | None  # (P, n, d) the exchange's pair impulses with drag_heating, N s, or None
