@@ -22,6 +22,22 @@ from jaxmpm import cli, restart  # noqa: E402
 RUN = ["elastic_impact", "--opt", "resolution=0.25", "--no-progress"]
 
 
+@pytest.fixture(autouse=True)
+def default_signal_handling():
+    """Each test starts with SIGINT and SIGTERM as a user's shell gives them to Python: SIGINT under
+    Python's default handler and neither blocked. A test process (a parallel test worker) may
+    inherit them ignored or blocked, and a child process inherits both: the run then never sees the
+    signal. Restored afterwards."""
+    handler = signal.getsignal(signal.SIGINT)
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
 def _small(t_end, n_out):
     scene = dataclasses.replace(jaxmpm.load_scene("elastic_impact", resolution=0.25), t_end=t_end, n_out=n_out)
     params = jaxmpm.default_params(scene)
