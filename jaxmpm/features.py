@@ -35,6 +35,7 @@ def soft_max(z, weight, width):
 
 
 def soft_min(z, weight, width):
+    """Weighted log-sum-exp min of z (N,) with weights (N,) >= 0 and width (m): -soft_max(-z)."""
     return -soft_max(-z, weight, width)
 
 

@@ -253,6 +253,7 @@ def jax_tree_index(tree, i):
 
 
 def io_units(name, scene):
+    """The SI unit text of the output field `name` in `scene`'s dimension and geometry."""
     return units(name, scene.dim, scene.axisymmetric)
 
 

@@ -45,6 +45,7 @@ def units(name: str, dim: int, axisymmetric: bool = False) -> str:
 
 
 def check_scene(scene) -> None:
+    """ValueError unless `scene` is a jaxmpm.Scene."""
     if not isinstance(scene, Scene):
         raise ValueError(f"scene = {type(scene).__name__} is invalid: allowed a jaxmpm.Scene")
 

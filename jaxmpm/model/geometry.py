@@ -14,6 +14,7 @@ import numpy as np
 
 
 def fail(name: str, value: Any, allowed: str) -> None:
+    """Raise the project's bad-input ValueError: the field `name`, its `value` and what is allowed."""
     raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
 
 

@@ -68,6 +68,7 @@ def check_scene_memory(scene, itemsize: int = 8) -> None:
 
 
 def size_text(n: float) -> str:
+    """A byte count n as text in B, KiB, MiB or GiB (3 significant digits)."""
     for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
         if n >= scale:
             return f"{n / scale:.3g} {unit}"

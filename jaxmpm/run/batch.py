@@ -66,6 +66,7 @@ def member(batch, i: int):
 
 
 def batch_size(batch) -> int:
+    """The common leading (batch) size of every leaf of a Params batch; ValueError where they differ."""
     sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(batch)}
     if len(sizes) != 1 or -1 in sizes:
         raise ValueError(

@@ -37,10 +37,12 @@ from jaxmpm.step import cfl_time_step, make_step
 
 
 def is_traced(tree) -> bool:
+    """True where any leaf of the pytree is a JAX tracer (inside jit, grad or vmap)."""
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
 
 
 def stack_states(states):
+    """States (a sequence of T pytrees of equal structure) stacked into one with a leading time axis (T, ...)."""
     return jax.tree.map(lambda *a: jnp.stack(a), *states)
 
 
