@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
+from jaxmpm.model.scene import is_fluid
 from jaxmpm.model.state import phase_slices
 
 
@@ -57,8 +58,6 @@ def axis_weight(r, r_axis):
 def debris_mass(scene, state):
     """The particles' mass, 0 on the particles of fluid phases (no shear strength: a chamber's gas),
     so that the cloud's front is the solids' front."""
-    from jaxmpm.scene import is_fluid
-
     if not any(is_fluid(scene.material(p).model) for p in scene.phases):
         return state.mass
     keep = jnp.concatenate(

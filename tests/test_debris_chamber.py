@@ -18,7 +18,9 @@ import jaxmpm
 from jaxmpm import diagnostics, features
 from jaxmpm.materials.library import library_constants
 from jaxmpm.scenes.impact import IMPACT_SPEED, chamber_air
+from jaxmpm.model.geometry import Box, Difference
 from jaxmpm.model.state import phase_slices
+from jaxmpm.step import cfl_time_step
 
 LOW, HIGH = 1e4, 1.05e6  # Pa: the seed's chambers, 0.1 and 10.5 bar
 
@@ -176,24 +178,27 @@ def test_the_front_slows_in_the_dense_chamber_as_the_drag_estimate_says():
 
 def shock_layer_density(scene, state, z_front):
     """The largest air density (kg/m^3) on the axis (r < 2 h) in one-cell slices from 8 cells ahead of
-    the debris front to 2 cells into it: the density behind the bow shock (sum of mass / sum of
-    volume per slice, so that single particles do not count)."""
+    the debris front up to the front (the lowest solid particle): the density behind the bow shock,
+    which stands ahead of the front (sum of mass / sum of volume per slice). The air between the
+    fragments behind the front is not the bow shock's and is left out."""
     h = scene.grid.h
     air = phase_slices(scene)[2]
     x, m, v = (np.asarray(a[air]) for a in (state.x, state.mass, state.volume))
-    near = (x[:, 0] < 2 * h) & (x[:, 1] > z_front - 8 * h) & (x[:, 1] < z_front + 2 * h)
+    near = (x[:, 0] < 2 * h) & (x[:, 1] > z_front - 8 * h) & (x[:, 1] < z_front)
     slab = np.floor((x[near, 1] - z_front) / h).astype(int)
     return max(m[near][slab == k].sum() / v[near][slab == k].sum() for k in np.unique(slab))
 
 
 @pytest.mark.slow
 def test_a_bow_shock_forms_ahead_of_the_cloud_with_the_normal_shock_jump():
-    """10.5 bar, the outputs from 2 to 6 us: the air just ahead of the debris front (on the axis) is
-    compressed to the normal-shock density of the front's speed, rho_2 / rho_1 = (gamma + 1) M^2 /
-    ((gamma - 1) M^2 + 2), M = (front speed over the last two outputs) / c_air (Rankine-Hugoniot for
-    an ideal gas; M = 15, rho_2 / rho_1 = 5.87): within 20% on average over the outputs (measured
-    1.10), each output within 0.8-1.5 (measured 0.94-1.43: the densest slice is sometimes air jammed
-    against a fragment). Still air 12 cells ahead of the front."""
+    """10.5 bar, each output from 2 to 6 us: the air ahead of the debris front (on the axis) is
+    compressed by the bow shock. Between the shock and the front the exact density lies between the
+    normal-shock jump of the front's speed, rho_2 / rho_1 = (gamma + 1) M^2 / ((gamma - 1) M^2 + 2)
+    (Rankine-Hugoniot for an ideal gas), M = (front speed over the last two outputs) / c_air (M = 15,
+    rho_2 / rho_1 = 5.87), and the stagnation density, 1.075 times that at M = 15 (the isentropic
+    compression to rest behind the shock, (1 + (gamma - 1) / 2 M_2^2)^(1 / (gamma - 1)), M_2 the
+    post-shock Mach number). The largest density ahead of the front must be within 20% of the normal-shock jump at every output (measured 0.93-1.11 at
+    resolution 0.75, 0.94-1.16 at resolution 1). Still air 12 cells ahead of the front."""
     scene, params, _, final, hist = full_run(HIGH)
     h = scene.grid.h
     air = phase_slices(scene)[2]
@@ -212,10 +217,7 @@ def test_a_bow_shock_forms_ahead_of_the_cloud_with_the_normal_shock_jump():
         rho = np.asarray(at(hist, k).mass[air] / at(hist, k).volume[air])[far]
         assert np.abs(rho / rho0 - 1).max() < 0.05  # the shock has not run far ahead: still air beyond it
     print("bow shock density jump / Rankine-Hugoniot's, 2-6 us:", np.round(ratios, 3))
-    assert abs(np.mean(ratios) - 1) < 0.2
-    assert (
-        0.8 < min(ratios) and max(ratios) < 1.5
-    )  # each output: the slices' scatter (a slice jammed against a fragment)
+    assert np.all(np.abs(np.asarray(ratios) - 1) < 0.2), ratios
 
 
 @pytest.mark.slow
@@ -236,14 +238,15 @@ def test_chamber_momentum_and_energy_over_the_run_with_the_drag_heat():
 @pytest.mark.slow
 def test_the_front_velocity_gradient_with_respect_to_log_drag_matches_central_differences():
     """d(point 1 velocity)/d log C_d at 10.5 bar by reverse mode against central differences (step
-    1e-4 in log C_d), one field for the solids, a plate of 6 mm radius (a smaller grid), 1 us at a
-    fixed step (the front over 0.5-1 us). Measured: 15.3485 m/s both ways (central differences at
-    steps 1e-2, 1e-3, 1e-4, 1e-5: 15.99, 15.34896, 15.348501, 15.3484955; reverse mode 15.3484954)."""
-    scene = cloud(chamber_pressure=HIGH, t_end=1e-6, plate_radius=6e-3)
+    1e-5 in log C_d), the whole chamber, one field for the solids, 1.5 us at a fixed step (the front
+    over 0.75-1.5 us). Measured: reverse mode 2.8283794 m/s; central differences at steps 1e-2, 1e-3,
+    1e-4, 1e-5: -116.8, 2.34, 2.8283801, 2.8283794. The front is a soft extreme over particles whose
+    drag switches as they cross cells, so the finite differences need a step below 1e-4 to see the
+    derivative: at 1e-3 they straddle such switches (on a plate of 6 mm radius, 1 us: 15.99, 15.34896,
+    15.348501, 15.3484955 against 15.3484954)."""
+    scene = cloud(chamber_pressure=HIGH, t_end=1.5e-6)
     params = jaxmpm.default_params(scene)
     s0 = jaxmpm.init_state(scene, params)
-    from jaxmpm.step import cfl_time_step
-
     dt = 0.5 * float(cfl_time_step(scene, params, s0))
     n = int(math.ceil(scene.t_end / dt))
 
@@ -254,8 +257,44 @@ def test_the_front_velocity_gradient_with_respect_to_log_drag_matches_central_di
 
     g = float(jax.jit(jax.grad(front_velocity))(0.0))
     f = jax.jit(front_velocity)
-    eps = 1e-4
+    eps = 1e-5
     fd = (float(f(eps)) - float(f(-eps))) / (2 * eps)
     print("d v1 / d log C_d", g, "central differences", fd)
     assert abs(fd) > 1.0  # the drag acts on the front
     assert g == pytest.approx(fd, rel=1e-5)
+
+
+def widened(scene, factor_r=2, extra_z=20e-3):
+    """The same chamber in a grid `factor_r` times as wide and `extra_z` (m) taller (same cell size
+    and origin, so the solids' particles are the same), the air filling it."""
+    grid = dataclasses.replace(
+        scene.grid, cells=(factor_r * scene.grid.cells[0], scene.grid.cells[1] + round(extra_z / scene.grid.h))
+    )
+    air = scene.phases[-1]
+    chamber = Difference(Box(grid.origin, grid.hi), air.geometry.minus)
+    return dataclasses.replace(
+        scene, grid=grid, phases=scene.phases[:-1] + (dataclasses.replace(air, geometry=chamber),)
+    )
+
+
+@pytest.mark.slow
+def test_the_walls_do_not_reach_the_cloud_within_the_run():
+    """10.5 bar, 6 us: the same run in a grid twice as wide (36 mm against 18) and 20 mm taller. The
+    bow shock's wings and the back-spray from the impact face reach the side and top walls from about
+    2.5 us, but nothing they reflect reaches the cloud: the solids below the plate's top face end
+    within 0.05 h of their place in the wider grid (measured 0.006 h), and points 1, 2 and 4 agree
+    within 0.005 km/s (measured 1e-4). The particles that do differ are back-spray at the walls."""
+    scene, _, s0, final, hist = full_run(HIGH)
+    big = widened(scene)
+    params_big, s0_big, final_big, hist_big = run(big, n_out=12)
+    solids = phase_slices(scene)[2].start
+    np.testing.assert_array_equal(np.asarray(s0_big.x[:solids]), np.asarray(s0.x[:solids]))
+    x, x_big = np.asarray(final.x[:solids]), np.asarray(final_big.x[:solids])
+    cloud_part = x[:, 1] < 0.0
+    assert cloud_part.sum() > 0.5 * solids
+    moved = np.linalg.norm(x - x_big, axis=1)[cloud_part].max() / scene.grid.h
+    v = np.asarray(features.feature_velocities(scene, hist, first=6))
+    v_big = np.asarray(features.feature_velocities(big, hist_big, first=6))
+    print("cloud's largest shift / h", moved, "features", v / 1e3, v_big / 1e3)
+    assert moved < 0.05
+    np.testing.assert_allclose(v, v_big, atol=5.0)

@@ -105,9 +105,10 @@ def debris_cloud(
     thick; the drag on a fragment of size d is the seed's law for it (the test's estimate dv/dt =
     -(3/4) C_D rho_air v^2 / (rho_s d) uses the same d). `drag_heating` with the chamber books the
     drag's work between every pair of fields, also with fields = 1. The grid is the vacuum scene's:
-    the bow shock stays within a few cells of the front, and the first waves reach the walls at
-    about 2.5-3 us, after which the slip walls take a little axial momentum (docs/guide/scenes.md
-    has the measured fronts, the bow shock and run times).
+    the bow shock stays within a few cells of the front; its wings and the back-spray reach the
+    side and top walls from about 2.5 us, and the slip walls then take a little axial momentum,
+    but what they reflect does not reach the cloud within the run (docs/guide/scenes.md has the
+    measured fronts, the bow shock, the check in a wider grid and run times).
 
     Status: partly validated. Measured (one field, C_h = 0.02, float64, features over 3-6 us),
     points 1, 2, 4 in km/s against the experiment's 6.3, 6.1, 3.9 (the seed: 6.29, 5.97, 3.92):
