@@ -21,6 +21,7 @@ from calibration import fit as F
 from calibration.model import CloudModel, theta_of
 from calibration import synthetic
 from jaxmpm.run import compile_cache
+from jaxmpm.scenes.impact import DEBRIS_VISCOSITY
 from jaxmpm.numerics.compile import jit
 
 SEED_CH = (0.02, 0.15, 0.5, 1.0)
@@ -108,12 +109,18 @@ def _check_scene(args, fields):
             t_end=args.t_end,
             fragmentation=args.fragmentation,
             drag_heating=args.drag_heating,
+            artificial_viscosity=tuple(args.artificial_viscosity),
         )
     except ValueError as e:
         if args.drag_heating and args.fields != 2:
             raise ValueError(
                 f"--drag-heating is invalid with --fields {args.fields}: allowed only with --fields 2 "
                 "(the heat is the drag's work between the two fields)"
+            ) from None
+        if "artificial_viscosity" in str(e):
+            raise ValueError(
+                f"--artificial-viscosity {' '.join(map(str, args.artificial_viscosity))} is invalid: allowed "
+                "two finite numbers >= 0 (C_LINEAR C_QUADRATIC)"
             ) from None
         raise ValueError(f"--resolution {args.resolution} is invalid: {e}") from None
 
@@ -151,6 +158,7 @@ def _setup(args):
         safety=args.step_safety,
         fragmentation=args.fragmentation,
         drag_heating=args.drag_heating,
+        artificial_viscosity=tuple(args.artificial_viscosity),
     )
 
 
@@ -184,7 +192,8 @@ def cmd_table(args) -> int:
         f.write(
             "# debris-cloud feature velocities (km/s, downstream positive); jaxmpm at resolution "
             f"{args.resolution}, {args.fields} field(s), C_d = {args.drag}, fragmentation {args.fragmentation}, "
-            f"drag heating {'on' if args.drag_heating else 'off'}, t_end = {model.t_end:g} s\n"
+            f"drag heating {'on' if args.drag_heating else 'off'}, artificial viscosity "
+            f"{tuple(args.artificial_viscosity)}, t_end = {model.t_end:g} s\n"
         )
         f.write("source,C_h,point_1,point_2,point_4\n")
         for r in rows:
@@ -333,6 +342,7 @@ def cmd_fit(args) -> int:
             fields=args.fields,
             fragmentation=args.fragmentation,
             drag_heating=args.drag_heating,
+            artificial_viscosity=list(args.artificial_viscosity),
             t_end=model.t_end,
             n_steps=model.n_steps,
             particles=int(model.state.x.shape[0]),
@@ -454,6 +464,15 @@ def build_parser():
             action="store_true",
             help="book the drag's work as heat (Scene.drag_heating; "
             "only with --fields 2): the run keeps its energy, and the fitted C_d, C_h change",
+        )
+        p.add_argument(
+            "--artificial-viscosity",
+            type=float,
+            nargs=2,
+            metavar=("C_LINEAR", "C_QUADRATIC"),
+            default=list(DEBRIS_VISCOSITY),
+            help="the debris cloud's artificial viscosity coefficients (debris_cloud's artificial_viscosity; "
+            "AUTODYN's default is 0.2 1.0); see docs/closure.md for what they do to the cloud's front",
         )
         p.add_argument(
             "--step-safety",

@@ -819,6 +819,12 @@ CASES = [
         r"not given: vacuum",
     ),
     (
+        "a negative artificial viscosity coefficient",
+        lambda: jaxmpm.load_scene("debris_cloud", artificial_viscosity=(0.2, -1.0)),
+        r"debris_cloud: artificial_viscosity = \(0.2, -1.0\) is invalid: allowed \[c_linear, c_quadratic\], two "
+        r"finite numbers >= 0",
+    ),
+    (
         "overrides as text",
         lambda: jaxmpm.load_scene("elastic_impact", overrides="grid.cells=[32,32]"),
         r"overrides = 'grid.cells=\[32,32\]' is invalid: allowed a mapping \{'dotted.key': value\}",

@@ -334,6 +334,10 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
         (["fit", "--landscape-cd", "1", "0.5"], r"--landscape-cd 1.0 0.5 is invalid: allowed LO HI with 0 < LO < HI"),
         (["fit", "--landscape-ch", "0", "1"], r"--landscape-ch 0.0 1.0 is invalid: allowed LO HI with 0 < LO < HI"),
         (["table", "--step-safety", "0.5"], r"--step-safety 0.5 is invalid: allowed a finite number >= 1"),
+        (
+            ["table", "--artificial-viscosity", "0.2", "-1"],
+            r"--artificial-viscosity 0.2 -1.0 is invalid: allowed two finite numbers >= 0",
+        ),
         (["fit", "--starts", "0"], r"--starts 0 is invalid: allowed an integer >= 1"),
         (
             ["fit", "--starts", "3", "--method", "lbfgs"],

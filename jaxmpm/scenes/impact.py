@@ -18,6 +18,11 @@ IMPACT_SPEED = 6710.0  # m/s
 
 DEBRIS_CELL = 0.4e-3  # m, the cell at resolution 1
 POSITIVE = number(0.0)
+DEBRIS_VISCOSITY = (0.5, 2.0)  # (c_linear, c_quadratic) of the debris cloud's artificial viscosity
+VISCOSITY_PAIR = options.Range(
+    "[c_linear, c_quadratic], two finite numbers >= 0",
+    lambda v: isinstance(v, (tuple, list)) and len(v) == 2 and all(number(0.0, strict=False).contains(x) for x in v),
+)
 
 
 def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_DIAMETER, **_) -> dict:
@@ -40,6 +45,7 @@ def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_
         "fragmentation": choice("failed", "plastic", "tensile"),
         "drag_heating": FLAG,
         "chamber_pressure": optional(number(0.0, unit="Pa", note="the chamber's air"), "vacuum"),
+        "artificial_viscosity": VISCOSITY_PAIR,
         "resolution": options.resolution(options.cells_floor(t / DEBRIS_CELL, 4), 4, "the plate"),
     }
 
@@ -65,6 +71,7 @@ def debris_cloud(
     fragmentation: str = "failed",
     drag_heating: bool = False,
     chamber_pressure: float | None = None,
+    artificial_viscosity: tuple[float, float] = DEBRIS_VISCOSITY,
 ) -> Scene:
     """Debris cloud: an Al-2024 sphere hits a thin Al-2024 plate at 6.71 km/s (Piekutowski, Int. J.
     Impact Eng. 14 (1993) 573; the seed's "continuous to disperse flow transition" and C_h table;
@@ -84,7 +91,8 @@ def debris_cloud(
     failed material counts its plastic strain as fragmentation; 'plastic': the seed's E5; 'tensile':
     only plastic strain accrued in tension, compressive pressure kept, and al2024 without its failure
     parts, so that fragmentation is the closure's: docs/closure.md),
-    artificial viscosity (0.5, 2.0); with fields = 2 and `drag_heating`, the drag's work booked as
+    artificial viscosity `artificial_viscosity` = (c_linear, c_quadratic), (0.5, 2.0) by default
+    (docs/closure.md has the free-surface checks behind this choice); with fields = 2 and `drag_heating`, the drag's work booked as
     heat (Scene.drag_heating: the run then keeps 0.995 of its energy, 0.970 without).
     Walls: slip on the outer radius, top and bottom of the grid (jets from the contact rim reach them;
     axial momentum is kept where only the radial wall is hit). Measures: the debris cloud's shape
@@ -145,6 +153,7 @@ def debris_cloud(
             fragmentation=fragmentation,
             drag_heating=drag_heating,
             chamber_pressure=chamber_pressure,
+            artificial_viscosity=artificial_viscosity,
         ),
     )
     air = chamber_pressure is not None
@@ -194,7 +203,7 @@ def debris_cloud(
         drag_heating=drag_heating,
         c_h=c_h,
         fragmentation=fragmentation,
-        artificial_viscosity=(0.5, 2.0),
+        artificial_viscosity=tuple(float(c) for c in artificial_viscosity),
         t_end=t_end,
         n_out=12,
         cfl=0.3,
