@@ -377,7 +377,7 @@ CASES = [
     (
         "unknown boundary kind",
         lambda: Boundary(faces=(("x_lo", "sticky"),)),
-        r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| fixed",
+        r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| separating \| fixed",
     ),
     (
         "wall on an axis the grid does not have",

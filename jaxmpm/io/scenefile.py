@@ -2,7 +2,7 @@
 
 A scene file has the top-level keys name, description, shape, transfer, cfl, t_end,
 axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
-origin), [boundary] (x_lo ... z_hi: "free", "slip" or "fixed"; layers), [effects] (gravity,
+origin), [boundary] (x_lo ... z_hi: "free", "slip", "separating" or "fixed"; layers), [effects] (gravity,
 gravity_ramp, damping, body_force, drag, drag_length, linear_drag, drag_heating,
 interface_forces, continuity, c_h, fragmentation, artificial_viscosity), [output] (n_out),
 [materials.<key>] and [[phase]] (name, material, geometry, velocity, field, ppc, fraction).

@@ -38,7 +38,7 @@ from jaxmpm.model.sampling import check_sampling
 
 SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
-BOUNDARIES = ("free", "slip", "fixed")
+BOUNDARIES = ("free", "slip", "separating", "fixed")
 AXES = "xyz"
 MAX_PPC = 8  # particles per cell per axis, at most
 FLUID_VISCOSITY = (0.5, 2.0)  # (c_linear, c_quadratic) of the fluid phases' default artificial viscosity
@@ -109,8 +109,10 @@ class Phase:
 
 @dataclass(frozen=True)
 class Boundary:
-    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero) or
-    'fixed' (velocity zero). `layers` is the number of node layers a condition applies to."""
+    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero),
+    'separating' (slip, but the material may leave the wall: only the normal velocity into the
+    wall is zeroed, the peers' mpm88 condition) or 'fixed' (velocity zero). `layers` is the number
+    of node layers a condition applies to."""
 
     faces: tuple[tuple[str, str], ...] = ()
     layers: int = 1
