@@ -11,7 +11,8 @@ Problems:
         reaches the far wall: the front Z = x / a against T beside Martin & Moyce's (1952)
         measurements; error |front speed / measured - 1| as in the test (Z from 3.5 to 4.75 against
         the experiment's once past the gate's opening). Rows: 'ddmp' (the default, with the fluids'
-        artificial viscosity), 'ddmp-no-av' (the default before it: artificial_viscosity (0, 0)) and
+        artificial viscosity and density diffusion), 'ddmp-no-diffusion' (the default before the
+        diffusion: density_diffusion 0), 'ddmp-no-av' (artificial_viscosity (0, 0)) and
         'bspline2-apic', at --dam-cells cells per a (20, 40 by default; 80 where affordable).
 Settings: shape function (linear MPM, DDMP, quadratic B-spline with the musl update and with APIC),
 cells, particles per cell per axis (2 or 4 on the bar; Sod has 8 per cell on the left and 1 on the
@@ -54,7 +55,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxmpm  # noqa: E402
-from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene  # noqa: E402
+from jaxmpm.model.scene import DENSITY_DIFFUSION, Boundary, Box, Grid, Phase, Scene  # noqa: E402
 from jaxmpm.scenes import initial_state  # noqa: E402
 from jaxmpm.scenes.basic import BAR_LENGTH, vibrating_bar  # noqa: E402
 
@@ -125,16 +126,17 @@ def sod_error(scene, s0, final):
 
 
 DAM_T_END = 3.6
-DAM_SCHEMES = {
-    "ddmp": ("ddmp", "musl", None),
-    "ddmp-no-av": ("ddmp", "musl", (0.0, 0.0)),
-    "bspline2-apic": ("bspline2", "apic", None),
+DAM_SCHEMES = {  # shape, transfer, artificial viscosity (None: the default), density diffusion delta
+    "ddmp": ("ddmp", "musl", None, DENSITY_DIFFUSION),
+    "ddmp-no-diffusion": ("ddmp", "musl", None, 0.0),
+    "ddmp-no-av": ("ddmp", "musl", (0.0, 0.0), DENSITY_DIFFUSION),
+    "bspline2-apic": ("bspline2", "apic", None, DENSITY_DIFFUSION),
 }
 
 
 def dam_scene(shape, cells, ppc):
-    kind, transfer, av = DAM_SCHEMES[shape]
-    changes = dict(shape=kind, transfer=transfer, artificial_viscosity=av)
+    kind, transfer, av, delta = DAM_SCHEMES[shape]
+    changes = dict(shape=kind, transfer=transfer, artificial_viscosity=av, density_diffusion=delta)
     if kind == "bspline2":  # half a cell between the particles and the walls: the box one cell larger each way
         base = dam_break(cells, DAM_T_END)
         h = base.grid.h
@@ -325,7 +327,7 @@ def plot_dam_fronts(ax, rows):
             Z,
             color=f"C{k}",
             lw=0.8 + 0.5 * math.log2(r["cells"] / 10),
-            ls="--" if "no-av" in r["shape"] else "-",
+            ls="--" if "no-av" in r["shape"] else ":" if "no-diffusion" in r["shape"] else "-",
             label=f"{r['shape']}, {r['cells']} cells per a, {r['wall_s']:.0f} s",
         )
     ax.plot(MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ks", label="Martin & Moyce (1952), a = 2.25 in")

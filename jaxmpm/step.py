@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from jaxmpm.stages import fields
 from jaxmpm.stages.grid_to_particle import grid_to_particle
-from jaxmpm.stages.layout import Layout, apply_walls
+from jaxmpm.stages.layout import Layout, apply_walls, wall_acceleration
 from jaxmpm.stages.closure import force_stress
 from jaxmpm.stages.constitutive import constitutive
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
@@ -178,14 +178,14 @@ def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
     a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
-    a = apply_walls(lay, a)
+    a = wall_acceleration(lay, v, a, dt)
     impulses = None
     if scene.has_exchange:
         with jax.named_scope("exchange"):
             F = exchange_force(lay, params, m[..., 0], g["vol"][..., 0], v + dt * a, dt, m_min, scene.drag_heating)
             if scene.drag_heating:
                 F, impulses = F
-        a = apply_walls(lay, a + fields.safe_div(F, m, m_min))
+        a = wall_acceleration(lay, v, a + fields.safe_div(F, m, m_min), dt)
     return GridUpdate(v, a, dg, p_amb, volume_rate, impulses)
 
 

@@ -370,6 +370,16 @@ CASES = [
         r"effects\.artificial_viscosity .* only with equation-of-state models and linear_fluid: phase 'block' uses 'hypoelastic'",
     ),
     (
+        "density diffusion out of range",
+        lambda: scene(density_diffusion=1.5),
+        r"effects\.density_diffusion = 1\.5 is invalid: allowed \[0, 1\] \(dimensionless; 0: off\)",
+    ),
+    (
+        "density diffusion not a number",
+        lambda: scene(density_diffusion="strong"),
+        r"effects\.density_diffusion = 'strong' is invalid",
+    ),
+    (
         "unknown boundary face",
         lambda: Boundary(faces=(("z_top", "slip"),)),
         r"boundary\.z_top = 'slip' is invalid: allowed face names",
@@ -377,7 +387,7 @@ CASES = [
     (
         "unknown boundary kind",
         lambda: Boundary(faces=(("x_lo", "sticky"),)),
-        r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| fixed",
+        r"boundary\.x_lo = 'sticky' is invalid: allowed free \| slip \| separating \| fixed",
     ),
     (
         "wall on an axis the grid does not have",

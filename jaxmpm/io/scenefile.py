@@ -2,9 +2,9 @@
 
 A scene file has the top-level keys name, description, shape, transfer, cfl, t_end,
 axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
-origin), [boundary] (x_lo ... z_hi: "free", "slip" or "fixed"; layers), [effects] (gravity,
+origin), [boundary] (x_lo ... z_hi: "free", "slip", "separating" or "fixed"; layers), [effects] (gravity,
 gravity_ramp, damping, body_force, drag, drag_length, linear_drag, drag_heating,
-interface_forces, continuity, c_h, fragmentation, artificial_viscosity), [output] (n_out),
+interface_forces, continuity, c_h, fragmentation, artificial_viscosity, density_diffusion), [output] (n_out),
 [materials.<key>] and [[phase]] (name, material, geometry, velocity, field, ppc, fraction).
 Unknown keys are errors, never ignored; every error is a ValueError naming the field (and the
 line, for malformed TOML).
@@ -45,7 +45,7 @@ from typing import Any, Mapping
 
 from jaxmpm.materials import Material, known_keys, library_material
 from jaxmpm.materials.models import model_names
-from jaxmpm.model.scene import Boundary, Grid, Phase, Scene, geometry_from_dict
+from jaxmpm.model.scene import DENSITY_DIFFUSION, Boundary, Grid, Phase, Scene, geometry_from_dict
 from jaxmpm.scenes import BUILTINS
 from jaxmpm.scenes.options import builder_options
 
@@ -85,6 +85,7 @@ EFFECT_KEYS = (
     "c_h",
     "fragmentation",
     "artificial_viscosity",
+    "density_diffusion",
 )
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
@@ -205,7 +206,7 @@ def scene_from_dict(d: Mapping) -> Scene:
     if "gravity" in e:
         grav = e["gravity"]
         kw["gravity"] = tuple(grav) if isinstance(grav, list) else grav
-    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag", "c_h"):
+    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag", "c_h", "density_diffusion"):
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
@@ -268,6 +269,8 @@ def scene_to_dict(scene: Scene) -> dict:
         e["fragmentation"] = scene.fragmentation
     if scene.artificial_viscosity is not None:
         e["artificial_viscosity"] = list(scene.artificial_viscosity)
+    if scene.density_diffusion != DENSITY_DIFFUSION:
+        e["density_diffusion"] = scene.density_diffusion
     d["effects"] = e
     d["output"] = {"n_out": scene.n_out}
     used = {p.material.key if isinstance(p.material, Material) else p.material for p in scene.phases}

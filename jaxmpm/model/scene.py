@@ -38,10 +38,13 @@ from jaxmpm.model.sampling import check_sampling
 
 SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
-BOUNDARIES = ("free", "slip", "fixed")
+BOUNDARIES = ("free", "slip", "separating", "fixed")
 AXES = "xyz"
 MAX_PPC = 8  # particles per cell per axis, at most
 FLUID_VISCOSITY = (0.5, 2.0)  # (c_linear, c_quadratic) of the fluid phases' default artificial viscosity
+# delta of the fluids' density diffusion (Scene.density_diffusion): delta-SPH's value (Antuono et al.
+# 2010, Comput. Phys. Commun. 181, 532), whose density diffusion term it is
+DENSITY_DIFFUSION = 0.1
 
 
 def is_fluid(model_name: str) -> bool:
@@ -109,8 +112,10 @@ class Phase:
 
 @dataclass(frozen=True)
 class Boundary:
-    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero) or
-    'fixed' (velocity zero). `layers` is the number of node layers a condition applies to."""
+    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero),
+    'separating' (slip, but the material may leave the wall: only the normal velocity into the
+    wall is zeroed, the peers' mpm88 condition) or 'fixed' (velocity zero). `layers` is the number
+    of node layers a condition applies to."""
 
     faces: tuple[tuple[str, str], ...] = ()
     layers: int = 1
@@ -203,6 +208,11 @@ class Scene:
         float32: +93% by T = 7); with it the energy only falls, by the same 4e-4 m g a as without
         before the impact (T = 2). The peers' mpm88 with linear shapes and 'musl' went non-finite at
         the peers' step without it and is stable with it. See `viscous_phases`.
+      density_diffusion: delta (dimensionless, in [0, 1]; default DENSITY_DIFFUSION = 0.1, 0: off)
+        of the density diffusion that barotropic fluid phases take with DDMP and 'musl' (the
+        delta-SPH term on the grid: each particle's specific volume relaxes to its phase's local
+        average at the rate delta c / h; jaxmpm.stages.density_diffusion). It removes DDMP's
+        particle pressure noise and dissipates: docs/verification.md.
       axisymmetric: 2D axisymmetric (r, z) geometry (PHYSICS 2.3): axis 0 is the radius r >= 0
         (grid.origin[0] >= 0), axis 1 the axial coordinate z. Volumes and masses are per radian
         (V = r dr dz), the stress has a hoop component (stress and F are 3x3, the third axis theta)
@@ -238,6 +248,7 @@ class Scene:
     c_h: float | None = None
     fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
+    density_diffusion: float = DENSITY_DIFFUSION
     axisymmetric: bool = False
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3
@@ -355,6 +366,10 @@ class Scene:
                         list(av),
                         f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}",
                     )
+        delta = _float("effects.density_diffusion", self.density_diffusion)
+        if not 0 <= delta <= 1:
+            _fail("effects.density_diffusion", delta, "[0, 1] (dimensionless; 0: off)")
+        object.__setattr__(self, "density_diffusion", delta)
         if not isinstance(self.axisymmetric, bool):
             _fail("axisymmetric", self.axisymmetric, "true | false")
         if self.axisymmetric:

@@ -223,7 +223,8 @@ def mpm88_ranges(dim: int = 2, ppc_scale: float = 1.0, **_) -> dict:
 def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     """The peers' benchmark scene ('mpm88'; ../shared/bench/peers/scene.py): a weakly compressible
     fluid block (K = 400 Pa, rho = 1 kg/m^3) falling under gravity 9.8 m/s^2 in a unit box with
-    slip walls 3 nodes thick, quadratic B-spline APIC (MLS) transfer. The peers sample 8192 random
+    walls 3 nodes thick that, like the peers', hold only the velocity into them ('separating'),
+    quadratic B-spline APIC (MLS) transfer. The peers sample 8192 random
     particles (2D) in [0.15, 0.55]^d; here a regular lattice of about the same count fills that box.
     """
     options.check("mpm88", {"dim": choice(2, 3)}, dict(dim=dim))
@@ -231,7 +232,7 @@ def mpm88(n_grid: int = 128, dim: int = 2, ppc_scale: float = 1.0) -> Scene:
     options.check("mpm88", mpm88_ranges(dim, ppc_scale), dict(n_grid=n_grid))
     n_particles, ppc = mpm88_particles(n_grid, dim, ppc_scale)
     mat = Material.make("mpm88_fluid", "linear_fluid", rho0=1.0, K=400.0)
-    walls = tuple((f"{a}_{s}", "slip") for a in "xyz"[:dim] for s in ("lo", "hi"))
+    walls = tuple((f"{a}_{s}", "separating") for a in "xyz"[:dim] for s in ("lo", "hi"))
     return Scene(
         name="mpm88",
         description="peers' benchmark: weakly compressible fluid, APIC",

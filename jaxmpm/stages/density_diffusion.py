@@ -13,11 +13,6 @@ from jaxmpm.numerics.transfer import interpolate, scatter
 from jaxmpm.stages import fields
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 
-# The rate delta c / h at which a fluid particle's specific volume relaxes to its neighbours'
-# average (`density_diffusion_rate`). delta = 0.1, the value of delta-SPH (Antuono et al. 2010,
-# Comput. Phys. Commun. 181, 532), whose density diffusion term this is.
-DENSITY_DIFFUSION = 0.1
-
 BAROTROPIC = ("linear_fluid", "tait", "linear")  # fluid models, and equations of state, whose p depends on rho alone
 
 
@@ -27,13 +22,14 @@ def diffused_particles(lay):
     'musl' update (not with the closure, E4, whose volume rate is its own), or None where no
     particle does. DDMP's blend is what gives the particles of a cell different volume rates
     (`density_diffusion_rate`). An equation of state with an energy term is left out: its contact
-    discontinuities (density jumps at one pressure) are not to be smoothed."""
+    discontinuities (density jumps at one pressure) are not to be smoothed. None too where the
+    scene's `density_diffusion` is 0."""
     scene = lay.scene
 
     def barotropic(model):
         return is_fluid(model) and (model in BAROTROPIC or split_model(model)[0] in BAROTROPIC)
 
-    if scene.shape != "ddmp" or scene.transfer != "musl" or scene.has_closure:
+    if scene.shape != "ddmp" or scene.transfer != "musl" or scene.has_closure or scene.density_diffusion == 0:
         return None
     on = [barotropic(scene.material(p).model) for p in scene.phases]
     if not any(on):
@@ -60,7 +56,7 @@ def phase_average(lay, st, volume, q):
 def density_diffusion_rate(lay, params, st, state, fluid):
     """(N,) 1/s: the volume rate that relaxes each fluid particle's specific volume u = V / m to
     its phase's local average u-bar (`phase_average`) at the rate delta c / h, c the particle's sound
-    speed: (delta c / h) (u-bar / u - 1); 0 for the other particles. The density diffusion of
+    speed and delta the scene's `density_diffusion`: (delta c / h) (u-bar / u - 1); 0 for the other particles. The density diffusion of
     delta-SPH on the grid. A weakly compressible fluid's pressure is K times its volume strain, and
     the grid sees a particle's volume only through its nodes' sums: volume errors that differ from
     particle to particle within a cell (DDMP's blend gives particles of one cell different volume
@@ -70,5 +66,5 @@ def density_diffusion_rate(lay, params, st, state, fluid):
     u = state.volume / state.mass
     u_bar = phase_average(lay, st, state.volume, u)
     c = bulk_modulus_and_wave_speed(lay, params, state)[1]
-    rate = DENSITY_DIFFUSION * c / lay.scene.grid.h * (u_bar / u - 1)
+    rate = lay.scene.density_diffusion * c / lay.scene.grid.h * (u_bar / u - 1)
     return jnp.where(jnp.asarray(fluid), rate, 0.0)

@@ -3,6 +3,7 @@ once per step function by `Layout.of(scene)`; and the walls' velocity mask it ho
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -85,19 +86,21 @@ class Layout:
 
 
 def boundary_mask(scene) -> np.ndarray | None:
-    """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1."""
+    """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1;
+    None where no component is held ('separating' faces hold no component both ways:
+    `separating_sides`)."""
     g, b = scene.grid, scene.boundary
     on_axis = scene.axisymmetric and g.origin[0] == 0.0
-    if all(b.kind(k, s) == "free" for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
+    if all(b.kind(k, s) in ("free", "separating") for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
         return None
     idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
     mask = np.ones((g.n_nodes, g.dim))
     for k in range(g.dim):
         for side in ("lo", "hi"):
             kind = b.kind(k, side)
-            if kind == "free":
+            if kind in ("free", "separating"):
                 continue
-            near = idx[:, k] < b.layers if side == "lo" else idx[:, k] > g.cells[k] - b.layers
+            near = wall_nodes(scene, idx, k, side)
             if kind == "fixed":
                 mask[near, :] = 0.0
             else:
@@ -107,7 +110,51 @@ def boundary_mask(scene) -> np.ndarray | None:
     return mask
 
 
+def wall_nodes(scene, idx, k, side):
+    """(n_nodes,) bool: the nodes (integer indices idx (n_nodes, d)) in the `layers` node layers
+    of the face (axis k, side 'lo' or 'hi')."""
+    layers, cells = scene.boundary.layers, scene.grid.cells[k]
+    return idx[:, k] < layers if side == "lo" else idx[:, k] > cells - layers
+
+
+@functools.lru_cache(maxsize=16)
+def separating_sides(scene) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, hi), each (n_nodes, d) bool: the velocity components a 'separating' face holds from
+    below (lo: the component may not be negative) and from above (hi: not positive); None where
+    no face is 'separating'."""
+    g, b = scene.grid, scene.boundary
+    if all(b.kind(k, s) != "separating" for k in range(g.dim) for s in ("lo", "hi")):
+        return None
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
+    held = {s: np.zeros((g.n_nodes, g.dim), bool) for s in ("lo", "hi")}
+    for k in range(g.dim):
+        for side in ("lo", "hi"):
+            if b.kind(k, side) == "separating":
+                held[side][wall_nodes(scene, idx, k, side), k] = True
+    return held["lo"], held["hi"]
+
+
 def apply_walls(layout, v):
-    """Nodal velocities or accelerations v (K, n_nodes, d) with the walls' components zeroed
-    (`Layout.bc_mask`); v itself where the scene has no walls."""
-    return v if layout.bc_mask is None else v * jnp.asarray(layout.bc_mask, v.dtype)
+    """Nodal velocities v (K, n_nodes, d) with the walls' components zeroed (`Layout.bc_mask`)
+    and, at 'separating' faces, the normal component into the wall zeroed; v itself where the
+    scene has no walls. Also for accelerations where no face is 'separating' (else
+    `wall_acceleration`)."""
+    v = v if layout.bc_mask is None else v * jnp.asarray(layout.bc_mask, v.dtype)
+    sides = separating_sides(layout.scene)
+    if sides is None:
+        return v
+    lo, hi = (jnp.asarray(s) for s in sides)
+    return jnp.where(lo, jnp.maximum(v, 0), jnp.where(hi, jnp.minimum(v, 0), v))
+
+
+def wall_acceleration(layout, v, a, dt):
+    """The nodal acceleration a (K, n_nodes, d) m/s^2 the walls allow to nodes of velocity v
+    (walls applied, m/s) over the step dt (s): `apply_walls` of a; at 'separating' faces, the
+    acceleration that takes v to `apply_walls` of v + dt a (a node leaving the wall keeps its
+    acceleration until it would move into it)."""
+    sides = separating_sides(layout.scene)
+    if sides is None:
+        return apply_walls(layout, a)
+    a = a if layout.bc_mask is None else a * jnp.asarray(layout.bc_mask, a.dtype)
+    held = (apply_walls(layout, v + dt * a) - v) / jnp.where(dt > 0, dt, 1)
+    return jnp.where(jnp.asarray(sides[0] | sides[1]) & (dt > 0), held, a)
