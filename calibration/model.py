@@ -52,7 +52,7 @@ class CloudModel:
         theta = jnp.asarray(theta, dt)
         new = dict(c_h=jnp.exp(theta[1]))
         if self.scene.drag is not None:
-            new["drag_coefficient"] = jnp.exp(theta[0])
+            new["drag"] = jnp.exp(theta[0])
         return dataclasses.replace(self.params, **new)
 
     def velocities_of_history(self, history):
@@ -94,7 +94,7 @@ class CloudModel:
         thetas = np.asarray(thetas, dtype=float)
         values = dict(c_h=np.exp(thetas[:, 1]))
         if self.scene.drag is not None:
-            values["drag_coefficient"] = np.exp(thetas[:, 0])
+            values["drag"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
         final, hist = jaxmpm.ensemble(
             self.scene,

@@ -34,6 +34,7 @@ from jaxmpm.model.geometry import (
 from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of, split_model
 from jaxmpm.model.memory import check_scene_memory
+from jaxmpm.model.numbers import NUMBERS
 from jaxmpm.model.sampling import check_sampling
 
 SHAPES = ("linear", "ddmp", "bspline2")
@@ -193,8 +194,8 @@ class Scene:
         D = tanh(eps_t / C_h) held in the State's damage, and alpha acts on tension only (compressive
         pressure kept): a shock is untouched (docs/closure.md).
       artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
-        q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
-        av_quadratic) for every phase; only with equation-of-state (hydrocode) models. None
+        q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (the defaults of
+        Params.artificial_viscosity) for every phase; only with equation-of-state (hydrocode) models. None
         (default): FLUID_VISCOSITY = (0.5, 2.0) for the fluid phases (no shear strength:
         `is_fluid`) with the FLIP-like transfers ('musl', 'seed', 'seed_halfstep'), none for the
         other phases and with 'apic'. (0, 0): none at all. Why: without it a free-surface flow
@@ -248,9 +249,30 @@ class Scene:
     window: tuple[int, ...] | None = None
 
     def __post_init__(self):
+        self._check_parts()
+        self._check_phases()
+        self._check_materials()
+        self._check_scheme()
+        self._check_numbers()
+        self._check_viscous_models()
+        self._check_axisymmetric()
+        self._check_window_shape()
+        self._check_couplings()
+        self._check_boundary()
+        self._check_run()
+        self._check_drag_heating()
+        self._check_window_use()
+        check_scene_memory(
+            self, itemsize=4
+        )  # before sampling (grid at float32, the least a run holds): refused, not swapped
+        check_sampling(self)  # every phase has particles, all inside the grid's usable region
+
+    # each check raises the project's ValueError naming the field (jaxmpm.model.geometry.fail) and
+    # stores the normalised value (tuples, floats); they run in this order, each relying on those before
+    def _check_parts(self):
+        """The grid, the phases and materials (tuples of Phase and Material), name and description."""
         if not isinstance(self.grid, Grid):
             _fail("grid", self.grid, "a Grid")
-        dim = self.grid.dim
         for name, kind in (("phases", Phase), ("materials", Material)):
             items = getattr(self, name)
             if (
@@ -262,16 +284,19 @@ class Scene:
         for name in ("name", "description"):
             if not isinstance(getattr(self, name), str):
                 _fail(name, getattr(self, name), "a string")
-        phases = tuple(self.phases)
-        if not phases:
-            _fail("phase", phases, "at least one [[phase]]")
-        object.__setattr__(self, "phases", phases)
+        if not tuple(self.phases):
+            _fail("phase", tuple(self.phases), "at least one [[phase]]")
+        object.__setattr__(self, "phases", tuple(self.phases))
         object.__setattr__(self, "materials", tuple(self.materials))
-        names = [p.name for p in phases]
+
+    def _check_phases(self):
+        """Unique phase names, each body inside the grid, velocity fields numbered without gaps."""
+        dim = self.grid.dim
+        names = [p.name for p in self.phases]
         for n in names:
             if names.count(n) > 1:
                 _fail("phase.name", n, "unique names (two phases share it)")
-        for p in phases:
+        for p in self.phases:
             if len(p.geometry.lo) != dim:
                 _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(), f"{dim} coordinates per point (grid is {dim}D)")
             for d in range(dim):
@@ -284,96 +309,96 @@ class Scene:
                         p.geometry.to_dict(),
                         f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)",
                     )
-        fields = sorted({p.field for p in phases})
+        fields = sorted({p.field for p in self.phases})
         if fields != list(range(len(fields))):
-            bad = [p for p in phases if p.field >= len(fields)][0]
+            bad = [p for p in self.phases if p.field >= len(fields)][0]
             _fail(f"phase.{bad.name}.field", bad.field, f"fields numbered 0..{len(fields) - 1} without gaps")
+
+    def _check_materials(self):
+        """Unique material keys; every phase's material resolves (an unknown key fails here, listing
+        the known ones), one material per key (a scene file names a material by its key alone)."""
         keys = [m.key for m in self.materials]
         for k in keys:
             if keys.count(k) > 1:
                 _fail("materials", k, "unique material keys")
         by_key = {m.key: ("materials", m) for m in self.materials}
-        for p in phases:  # resolves now: an unknown key fails here, listing the known ones
+        for p in self.phases:
             m = resolve_material(p.material, self.materials, f"phase.{p.name}.material")
             where, other = by_key.setdefault(m.key, (f"phase.{p.name}", m))
-            if other != m:  # a scene file (and every output's /scene) names a material by its key alone
+            if other != m:
                 _fail(
                     f"phase.{p.name}.material",
                     m.key,
                     f"one material per key: {where} has another material of key {m.key!r} (rename one)",
                 )
+
+    def _check_scheme(self):
+        """The shape function and the transfer scheme, and that 'apic' has B-splines."""
         if self.shape not in SHAPES:
             _fail("shape", self.shape, " | ".join(SHAPES))
         if self.transfer not in TRANSFERS:
             _fail("transfer", self.transfer, " | ".join(TRANSFERS))
         if self.transfer == "apic" and self.shape != "bspline2":
             _fail("transfer", self.transfer, "'apic' only with shape = 'bspline2'")
-        if self.gravity is not None:
-            object.__setattr__(self, "gravity", _floats("effects.gravity", self.gravity, dim))
-        ramp = _float("effects.gravity_ramp", self.gravity_ramp)
-        if ramp < 0:
-            _fail("effects.gravity_ramp", ramp, ">= 0 s")
-        if ramp > 0 and self.gravity is None:
-            _fail("effects.gravity_ramp", ramp, "only with effects.gravity (it ramps gravity in)")
-        object.__setattr__(self, "gravity_ramp", ramp)
-        if self.damping is not None:
-            c = _float("effects.damping", self.damping)
-            if c < 0:
-                _fail("effects.damping", c, ">= 0 1/s")
-            object.__setattr__(self, "damping", c)
+
+    def _check_numbers(self):
+        """The effects' numbers and cfl, from the table of jaxmpm.model.numbers: each in its range,
+        and those that only act with another effect (gravity_ramp, drag_length) only with it."""
+        for n in NUMBERS:
+            value = getattr(self, n.name)
+            if value is not None:
+                object.__setattr__(self, n.name, n.check_scene_value(value, self.grid.dim))
+        for n in NUMBERS:
+            value, switch = getattr(self, n.name), n.switch_attribute
+            if switch and switch != n.name and value not in (None, n.default) and getattr(self, switch) is None:
+                _fail(n.key, value, f"only with effects.{switch} ({n.role})")
         if not isinstance(self.body_force, bool):
             _fail("effects.body_force", self.body_force, "true | false")
-        for name, unit, positive in (
-            ("drag", "", False),
-            ("drag_length", "m", True),
-            ("linear_drag", "kg/(m^3 s)", False),
-        ):
-            val = getattr(self, name)
-            if val is not None:
-                val = _float(f"effects.{name}", val)
-                if val < 0 or (positive and val == 0):
-                    _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
-                object.__setattr__(self, name, val)
-        if self.drag_length is not None and self.drag is None:
-            _fail("effects.drag_length", self.drag_length, "only with effects.drag (the length of its drag law, E3)")
-        if self.has_closure:
-            ch = _float("effects.c_h", self.c_h)
-            if not ch > 0:
-                _fail("effects.c_h", ch, "> 0")
-            object.__setattr__(self, "c_h", ch)
-        if self.artificial_viscosity is not None:
-            av = _floats("effects.artificial_viscosity", self.artificial_viscosity, 2)
-            if min(av) < 0:
-                _fail("effects.artificial_viscosity", list(av), "[c_linear, c_quadratic] with both >= 0")
-            object.__setattr__(self, "artificial_viscosity", av)
-            for p in self.phases:
-                m = self.material(p)
-                # (linear_fluid recomputes its stress from F each step, so a q added to it does not accumulate)
-                if not (model_of(m.model).hydro or is_fluid(m.model)):
-                    _fail(
-                        "effects.artificial_viscosity",
-                        list(av),
-                        f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}",
-                    )
+
+    def _check_viscous_models(self):
+        """An artificial viscosity given for every phase only where each has an equation of state
+        (or is a linear_fluid, which recomputes its stress from F each step: a q does not accumulate)."""
+        if self.artificial_viscosity is None:
+            return
+        for p in self.phases:
+            m = self.material(p)
+            if not (model_of(m.model).hydro or is_fluid(m.model)):
+                _fail(
+                    "effects.artificial_viscosity",
+                    list(self.artificial_viscosity),
+                    f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}",
+                )
+
+    def _check_axisymmetric(self):
+        """Axisymmetric: a 2D (r, z) grid at r >= 0, with the shapes and updates that have a hoop term."""
         if not isinstance(self.axisymmetric, bool):
             _fail("axisymmetric", self.axisymmetric, "true | false")
-        if self.axisymmetric:
-            if dim != 2:
-                _fail("axisymmetric", True, f"only with a 2D (r, z) grid (grid is {dim}D)")
-            if self.grid.origin[0] < 0:
-                _fail("grid.origin[0]", self.grid.origin[0], ">= 0 m (the radius of an axisymmetric grid)")
-            if self.shape == "bspline2" or self.transfer == "apic":
-                _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
-        if self.window is not None:
-            w = self.window
-            ok = (
-                isinstance(w, (tuple, list))
-                and len(w) == dim
-                and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells))
-            )
-            if not ok:
-                _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
-            object.__setattr__(self, "window", tuple(int(c) for c in w))
+        if not self.axisymmetric:
+            return
+        if self.dim != 2:
+            _fail("axisymmetric", True, f"only with a 2D (r, z) grid (grid is {self.dim}D)")
+        if self.grid.origin[0] < 0:
+            _fail("grid.origin[0]", self.grid.origin[0], ">= 0 m (the radius of an axisymmetric grid)")
+        if self.shape == "bspline2" or self.transfer == "apic":
+            _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
+
+    def _check_window_shape(self):
+        """A window is d cell counts, each within the grid's."""
+        if self.window is None:
+            return
+        w, dim = self.window, self.dim
+        ok = (
+            isinstance(w, (tuple, list))
+            and len(w) == dim
+            and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells))
+        )
+        if not ok:
+            _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
+        object.__setattr__(self, "window", tuple(int(c) for c in w))
+
+    def _check_couplings(self):
+        """Interface forces (all fields, or a list of >= 2), the continuity form, the closure's
+        fragmentation, and the schemes that several fields and the closure need."""
         if not isinstance(self.interface_forces, bool):
             try:
                 sub = tuple(sorted(set(int(k) for k in self.interface_forces)))
@@ -401,8 +426,12 @@ class Scene:
             _fail("effects.c_h", self.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
         if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
             _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
+
+    def _check_boundary(self):
+        """A Boundary whose faces are the grid's, with fewer wall layers than the grid has cells."""
         if not isinstance(self.boundary, Boundary):
             _fail("boundary", self.boundary, "a Boundary")
+        dim = self.dim
         for face, kind in self.boundary.faces:
             if AXES.index(face.split("_")[0]) >= dim:
                 _fail(f"boundary.{face}", kind, f"faces of the {dim}D grid's axes {FACE_NAMES[: 2 * dim]}")
@@ -415,16 +444,18 @@ class Scene:
                     f"at most {self.grid.cells[k] // sides} on axis {AXES[k]} ({self.grid.cells[k]} cells, walls on {sides} "
                     "side(s)): more would constrain every node of the axis",
                 )
-        cfl = _float("cfl", self.cfl)
-        if not 0 < cfl <= 1:
-            _fail("cfl", cfl, "(0, 1]")
-        object.__setattr__(self, "cfl", cfl)
+
+    def _check_run(self):
+        """The default end time and number of outputs."""
         t_end = _float("t_end", self.t_end)
         if not t_end > 0:
             _fail("t_end", t_end, "> 0 s")
         object.__setattr__(self, "t_end", t_end)
         if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
             _fail("output.n_out", self.n_out, "an integer >= 1")
+
+    def _check_drag_heating(self):
+        """Drag heating needs an exchange to heat with and the 'musl' update."""
         if not isinstance(self.drag_heating, bool):
             _fail("effects.drag_heating", self.drag_heating, "true | false")
         if self.drag_heating and not self.has_exchange:
@@ -440,6 +471,9 @@ class Scene:
                 self.drag_heating,
                 "false unless transfer = 'musl' (the heat is the drag's work at the remap of the step's own positions)",
             )
+
+    def _check_window_use(self):
+        """A window only where the scene has per-field grid operators to compute on it."""
         if self.window is not None and self.shape != "ddmp" and not self.has_interface_forces and not self.has_exchange:
             _fail(
                 "window",
@@ -447,10 +481,6 @@ class Scene:
                 "None unless the scene has DDMP operators (shape 'ddmp', or interface "
                 "forces between velocity fields) or an exchange between fields",
             )
-        check_scene_memory(
-            self, itemsize=4
-        )  # before sampling (grid at float32, the least a run holds): refused, not swapped
-        check_sampling(self)  # every phase has particles, all inside the grid's usable region
 
     # ------------------------------------------------------------------ derived static facts
     @property

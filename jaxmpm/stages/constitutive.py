@@ -29,7 +29,8 @@ def artificial_viscosity(lay, params, state, rho_new, trD):
     c = jnp.sqrt(K / (state.mass / state.volume))
     l = lay.scene.grid.h
     comp = jnp.minimum(trD, 0.0)
-    return rho_new * l * (params.av_quadratic * l * comp**2 - params.av_linear * c * comp)
+    c_linear, c_quadratic = params.artificial_viscosity[0], params.artificial_viscosity[1]
+    return rho_new * l * (c_quadratic * l * comp**2 - c_linear * c * comp)
 
 
 def viscous_particles(lay):

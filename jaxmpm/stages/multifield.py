@@ -250,7 +250,7 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
             theta,
             rho,
             v,
-            params.drag_coefficient if scene.drag is not None else None,
+            params.drag if scene.drag is not None else None,
             params.drag_length,
             params.linear_drag if scene.linear_drag is not None else None,
         )
