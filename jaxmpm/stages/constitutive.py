@@ -7,6 +7,9 @@ Shapes: N particles, d dimensions; SI units.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -41,11 +44,24 @@ def viscous_particles(lay):
     )
 
 
+class ConstitutiveUpdate(NamedTuple):
+    """What the constitutive stage (5) gives the step: the new values of these State fields (N
+    particles, m the material dimension: 3 axisymmetric, else d)."""
+
+    F: jax.Array  # (N, m, m) deformation gradient
+    stress: jax.Array  # (N, m, m) Cauchy stress, Pa
+    volume: jax.Array  # (N,) m^3 (per radian axisymmetric)
+    energy: jax.Array  # (N,) J/kg specific internal energy
+    eps_ps: jax.Array  # (N,) equivalent plastic strain
+    pressure: jax.Array  # (N,) Pa
+    damage: jax.Array  # (N,) in [0, 1]
+
+
 def constitutive(lay, params, state, L, dt, p_amb=None):
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
     model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
-    values, sigma_f the stress the grid sees), plastic strain and damage. Returns the new fields as a
-    dict of State field names."""
+    values, sigma_f the stress the grid sees), plastic strain and damage. Returns a `ConstitutiveUpdate`
+    (the new values of those State fields)."""
     scene = lay.scene
     d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
@@ -91,7 +107,7 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     damage = new.damage
     if tensile:
         damage = tensile_fragment_fraction(params.c_h, damage, gate * jnp.maximum(new.eps_ps - state.eps_ps, 0.0))
-    return dict(
+    return ConstitutiveUpdate(
         F=new.F,
         stress=new.stress,
         volume=vol,

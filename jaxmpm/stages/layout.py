@@ -111,3 +111,18 @@ def apply_walls(layout, v):
     """Nodal velocities or accelerations v (K, n_nodes, d) with the walls' components zeroed
     (`Layout.bc_mask`); v itself where the scene has no walls."""
     return v if layout.bc_mask is None else v * jnp.asarray(layout.bc_mask, v.dtype)
+
+
+# ------------------------------------------------------------------------------- stage names
+# Each stage of the step runs under a jax.named_scope of its name in STAGES, and the parts of the
+# grid update and of the grid-to-particle stage under those in STAGE_PARTS (where the scene has
+# them): XLA's operations carry the names in their metadata, so that a profile can put its
+# kernels' times on the stages (benchmarks/profile_step.py). The names change no computation.
+STAGES = ("1_shape_functions", "2_particle_to_grid", "3_grid_update", "4_grid_to_particle", "5_constitutive")
+STAGE_PARTS = ("ddmp_operators", "stress_force", "interface_force", "exchange", "remap", "velocity_gradient")
+
+
+def mass_floor(lay, state):
+    """The nodal mass below which a node counts as empty, kg: eps^2 times the largest particle mass."""
+    eps = jnp.finfo(state.mass.dtype).eps
+    return lay.particle_max(state.mass) * eps**2

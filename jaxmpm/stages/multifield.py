@@ -39,7 +39,7 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
     pressures -> I map (`jax.vjp`), so the map's forward pass (a scatter of the pressures, the
     common pressure, a gather, a scatter and two DDMP contractions) runs once, not twice; the
     phase pressures' moments are scattered inside it, not with the other nodal parts (E15's fit,
-    continuity 'off', takes them from g['pm'])."""
+    continuity 'off', takes them from g.pressure_moments)."""
     dtype = state.mass.dtype
     if lay.scene.continuity_form == "transport":
         power_density, p_part = _coupling_map(lay, params, st, beta, state, g, dg, m_min)
@@ -48,7 +48,7 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
         def volume_rate(v):
             return fields.safe_div(transpose(v)[0], state.volume, 0.0)
     else:
-        mom, volume_rate = g["pm"], None
+        mom, volume_rate = g.pressure_moments, None
         I = interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
     p_amb = None
     if lay.scene.has_closure and lay.ambient_by_field:
@@ -71,10 +71,14 @@ def ambient_pressure_by_phase(lay, params, st, state):
     g = scatter_named(
         lay,
         st,
-        {"vol": w * V[:, None, None], "kvol": w * (V * kappa)[:, None, None], "pm": pressure_moments(lay, st, p, V)},
+        {
+            "volume": w * V[:, None, None],
+            "compressible_volume": w * (V * kappa)[:, None, None],
+            "pressure_moments": pressure_moments(lay, st, p, V),
+        },
         by_phase=True,
     )
-    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g["pm"], dtype))  # (n_phases, n_nodes)
+    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g.pressure_moments, dtype))  # (n_phases, n_nodes)
     return interpolate(st, lay.phase, p_amb[..., None])[:, 0]
 
 
@@ -91,9 +95,9 @@ def pressure_moments(lay, st, pressure, volume):
 def _pressure_inputs(lay, g, moments, dtype):
     """Nodal volume fractions, compressibilities and phase pressures, each (K, n_nodes), from the
     scattered parts g and the scattered `pressure_moments` (K, n_nodes, C)."""
-    vol = g["vol"][..., 0]
+    vol = g.volume[..., 0]
     theta = vol / node_volume(lay, dtype)[None]
-    kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
+    kappa = fields.safe_div(g.compressible_volume[..., 0], vol, 0.0)
     if lay.scene.continuity_form == "transport":
         w = moments[..., 0]
         return theta, kappa, fields.safe_div(moments[..., 1], w, 1e-12 * jnp.max(w))
@@ -160,11 +164,11 @@ def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
     grid = lay.scene.grid
     p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
     g_p = scatter_named(lay, st, pressure_parts(st, state.volume, beta, p_p, particle_radius(lay, state)))
-    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes) if "shp" in g_p else None
-    I = g_p["f"] + ddmp.nodal_interface_force(grid, dg, p_hat, p_n.reshape(grid.nodes)).reshape(g_p["f"].shape)
+    p_hat = g_p.pressure_share.reshape((lay.n_fields,) + grid.nodes) if g_p.pressure_share is not None else None
+    I = g_p.force + ddmp.nodal_interface_force(grid, dg, p_hat, p_n.reshape(grid.nodes)).reshape(g_p.force.shape)
     if w is None:
-        return fields.share_interface_force(I, g["m"][..., 0], m_min)
-    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
+        return fields.share_interface_force(I, g.mass[..., 0], m_min)
+    return fields.share_interface_force(I * w[..., None], g.mass[..., 0] * w, m_min) * w[..., None]
 
 
 def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
@@ -214,7 +218,9 @@ def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
     dtype = state.mass.dtype
 
     def power_density(p_part):
-        mom = scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
+        mom = scatter_named(
+            lay, st, {"pressure_moments": pressure_moments(lay, st, p_part, state.volume)}
+        ).pressure_moments
         p_n = nodal_common_pressure(lay, g, mom, dtype)
         return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), mom
 

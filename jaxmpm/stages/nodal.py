@@ -25,9 +25,26 @@ def grid_shape(lay):
     return (lay.n_fields,) + tuple(lay.scene.grid.nodes)
 
 
+class NodalSums(NamedTuple):
+    """What the particle-to-grid stage (2) scatters onto the grid and the later stages read: the sums
+    over particles p of each field (or, by phase, each phase) K at each node n of the stencil weights
+    S_np times what the particle carries. d dimensions, C a fit's moments. None where the scene has
+    no use for it."""
+
+    mass: jax.Array | None = None  # (K, n, 1) kg: sum m_p S_np
+    momentum: jax.Array | None = None  # (K, n, d) kg m/s: sum m_p v_p S_np
+    force: jax.Array | None = None  # (K, n, d) N: the particles' stress force, -V beta sigma . grad S (E11)
+    stress_share: jax.Array | None = None  # (K, n, d*d) N m: DDMP's nodal share V (1 - beta) sigma S (E11)
+    pressure_share: jax.Array | None = None  # (K, n, 1) N m: the same of an isotropic pressure (E13)
+    volume: jax.Array | None = None  # (K, n, 1) m^3: sum V_p S_np
+    pressure_moments: jax.Array | None = None  # (K, n, C): the moments of the nodal phase pressure (E15)
+    compressible_volume: jax.Array | None = None  # (K, n, 1) m^3/Pa: sum V_p kappa_p S_np
+
+
 def scatter_named(lay, st, parts, by_phase=False):
-    """One scatter of several named contributions {name: (N, S, C)} -> {name: (K, n_nodes, C)}, K
-    the velocity fields; by_phase: onto one grid per phase instead (K the phases)."""
+    """One scatter of several contributions {NodalSums field: (N, S, C)} -> NodalSums of (K, n_nodes, C),
+    K the velocity fields; by_phase: onto one grid per phase instead (K the phases). The channels are
+    scattered in the order of `parts`."""
     names = list(parts)
     sizes = [parts[k].shape[-1] for k in names]
     index, count = (lay.phase, lay.n_phases) if by_phase else (lay.field, lay.n_fields)
@@ -36,7 +53,7 @@ def scatter_named(lay, st, parts, by_phase=False):
     for k, c in zip(names, sizes):
         out[k] = g[..., i : i + c]
         i += c
-    return out
+    return NodalSums(**out)
 
 
 def stress_parts(st, volume, beta, sig, radius=None):
@@ -49,27 +66,27 @@ def stress_parts(st, volume, beta, sig, radius=None):
         sig = sig[:, :2, :2]
     d = sig.shape[-1]
     Vb = volume if beta is None else volume * beta
-    parts = {"f": -stencil_apply(Vb[:, None, None] * sig, st.dw)}
+    parts = {"force": -stencil_apply(Vb[:, None, None] * sig, st.dw)}
     if radius is not None:
-        parts["f"] = parts["f"].at[..., 0].add(hoop)
+        parts["force"] = parts["force"].at[..., 0].add(hoop)
     if beta is not None:
         shv = ((volume * (1 - beta))[:, None, None] * sig).reshape(-1, d * d)
-        parts["shv"] = st.w[..., None] * shv[:, None, :]
+        parts["stress_share"] = st.w[..., None] * shv[:, None, :]
     return parts
 
 
 def pressure_parts(st, volume, beta, p, radius=None):
     """`stress_parts` of the isotropic stress p I (p: (N,) Pa), with DDMP's nodal share as one
-    channel 'shp' = V (1 - beta) p S instead of the d^2 of 'shv' (its tensor is p_hat I): the
+    channel `pressure_share` = V (1 - beta) p S instead of the d^2 of `stress_share` (its tensor is p_hat I): the
     same forces from a narrower scatter (the interface forces, E13; `ddmp.nodal_interface_force`
     contracts the share)."""
     Vb = volume if beta is None else volume * beta
     f = -(Vb * p)[:, None, None] * st.dw
     if radius is not None:
         f = f.at[..., 0].add(-(volume * p / radius)[:, None] * st.w)
-    parts = {"f": f}
+    parts = {"force": f}
     if beta is not None:
-        parts["shp"] = st.w[..., None] * (volume * (1 - beta) * p)[:, None, None]
+        parts["pressure_share"] = st.w[..., None] * (volume * (1 - beta) * p)[:, None, None]
     return parts
 
 
@@ -80,12 +97,12 @@ def particle_radius(lay, state):
 
 def nodal_stress_force(lay, dg, g):
     """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
-    f = g["f"]
+    f = g.force
     grid = lay.scene.grid
-    if "shv" in g:
-        return f + ddmp.nodal_stress_force(grid, dg, g["shv"].reshape(grid_shape(lay) + (lay.dim, lay.dim))).reshape(
-            f.shape
-        )
+    if g.stress_share is not None:
+        return f + ddmp.nodal_stress_force(
+            grid, dg, g.stress_share.reshape(grid_shape(lay) + (lay.dim, lay.dim))
+        ).reshape(f.shape)
     return f
 
 

@@ -1,0 +1,61 @@
+"""Stage 3 of the step (PHYSICS 2.1): the grid update. From stage 2's `NodalSums`: the nodal
+velocity and acceleration of every velocity field, with the internal force (E11), the interface
+forces (E13), body forces, damping, walls and the implicit exchange (E3), handed to stage 4 as a
+`GridUpdate`. The parts are in jaxmpm.stages.nodal (scatters, DDMP operators, stress force) and
+jaxmpm.stages.multifield (the coupling of fields).
+
+Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
+"""
+
+from __future__ import annotations
+
+import jax
+
+from jaxmpm.numerics.transfer import scatter
+from jaxmpm.stages import fields
+from jaxmpm.stages.layout import apply_walls
+from jaxmpm.stages.multifield import exchange_force, interface_force
+from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, nodal_stress_force
+
+
+def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
+    """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
+    internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
+    Returns a `GridUpdate`: v_old, a, the DDMP operators or None, the closure's ambient pressure
+    (K, n_nodes) where every field holds one phase and the fields have interface forces (else None:
+    `grid_to_particle` forms it per phase, E8), the continuity form's volume rate v -> (N,)
+    (`multifield.interface_force`) or None, the exchange's pair impulses (P, n_nodes, d) in N s
+    with scene.drag_heating (`fields.exchange`), else None."""
+    scene = lay.scene
+    dtype = state.mass.dtype
+    dg = None
+    if beta is not None or scene.has_interface_forces:
+        with jax.named_scope("ddmp_operators"):
+            dg = ddmp_operators(lay, st, g.volume[..., 0], dtype, state.volume)
+    m = g.mass
+    v = apply_walls(lay, fields.safe_div(g.momentum, m, m_min))
+    with jax.named_scope("stress_force"):
+        f = nodal_stress_force(lay, dg, g)
+    p_amb, volume_rate = None, None
+    if scene.has_interface_forces:
+        with jax.named_scope("interface_force"):
+            I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
+        f = f + I
+    if acc_p is not None:
+        f = f + lay.particle_sum(
+            scatter(
+                st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :], lay.n_fields, lay.n_nodes
+            )
+        )
+    a = fields.safe_div(f, m, m_min)
+    if scene.damping is not None:
+        a = a - params.damping * v
+    a = apply_walls(lay, a)
+    impulses = None
+    if scene.has_exchange:
+        with jax.named_scope("exchange"):
+            F = exchange_force(lay, params, m[..., 0], g.volume[..., 0], v + dt * a, dt, m_min, scene.drag_heating)
+            if scene.drag_heating:
+                F, impulses = F
+        a = apply_walls(lay, a + fields.safe_div(F, m, m_min))
+    return GridUpdate(v, a, dg, p_amb, volume_rate, impulses)
