@@ -211,6 +211,8 @@ def ensemble(
     how many; up to REPLANS times, where every member got at least half way). Where n_steps was
     given, or still too few, a RuntimeError names the member and the time it reached, unless
     allow_short (then check final.t)."""
+    # longer than 60 lines on purpose: the checks of its arguments, then one vmapped run and its replanning;
+    # they share the batch's plan
     t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)

@@ -245,6 +245,8 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
 
     impulses=True: returns (F, J), J (P, n_nodes, d) in N s the momentum each pair of fields
     exchanged (`fields.exchange`; zero where no solve ran)."""
+    # longer than 60 lines on purpose: the exchange (E3) of one step: the drag rows, the pairs' solve and the
+    # optional heating share its nodal arrays
     scene = lay.scene
     V_n = node_volume(lay, m.dtype)
     n_pairs = m.shape[0] * (m.shape[0] - 1) // 2
