@@ -13,6 +13,13 @@ at all.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
+from jaxmpm.model.params import Params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State
+
 from dataclasses import replace
 
 import jax
@@ -45,7 +52,7 @@ __all__ = [
 
 
 @jax.custom_jvp
-def tangent_fenced(x, on):
+def tangent_fenced(x: Any, on: jax.Array) -> Any:
     """x (any array); its tangent taken under lax.cond(on), zero where on is false. Reverse mode
     transposes the conditional, so x's cotangent enters it as one array: XLA cannot fuse the
     cotangent's computation into each of its consumers (where, in the velocity gradient's
@@ -64,17 +71,17 @@ def _tangent_fenced_jvp(primals, tangents):
 _mass_floor = mass_floor  # its name before it moved into jaxmpm.stages.layout
 
 
-def wave_speed(scene, params, state):
+def wave_speed(scene: Scene, params: Params, state: State) -> jax.Array:
     """(N,) longitudinal wave speed of every particle (m/s) at its current density."""
     return bulk_modulus_and_wave_speed(Layout.of(scene), params, state)[1]
 
 
-def cfl_time_step(scene, params, state, cfl=None):
+def cfl_time_step(scene: Scene, params: Params, state: State, cfl: jax.Array | None = None) -> jax.Array:
     """dt = CFL h / max_p (c_p + |v_p|) (PHYSICS 2.1), s."""
     return _cfl_time_step(Layout.of(scene), params, state, cfl)
 
 
-def _cfl_time_step(lay, params, state, cfl=None):
+def _cfl_time_step(lay: Layout, params: Params, state: State, cfl: jax.Array | None = None) -> jax.Array:
     cfl = params.cfl if cfl is None else cfl
     v2 = jnp.sum(state.v * state.v, axis=-1)
     moving = v2 > 0
@@ -84,7 +91,7 @@ def _cfl_time_step(lay, params, state, cfl=None):
     return cfl * lay.scene.grid.h / lay.particle_max(speed)
 
 
-def seed_update(lay, params, state, dt):
+def seed_update(lay: Layout, params: Params, state: State, dt: jax.Array) -> State:
     """One explicit step with the seed's update (PHYSICS 2.1 step 4) and linear, DDMP or B-spline
     gradients: v_p += dt sum_n a_n S_np, a remap of the particle momentum to the grid, and the
     stress driven by the gradient of the remapped velocity. Three variants (scene.transfer):
@@ -127,7 +134,7 @@ def seed_update(lay, params, state, dt):
     return replace(moved, t=state.t + dt, **new._asdict())
 
 
-def make_step(scene, shards=1, axis_name=None):
+def make_step(scene: Scene, shards: int = 1, axis_name: str | None = None) -> Callable[..., State]:
     """Compose the pure step of `scene`: step(params, state, t_stop=inf, dt=None) -> state.
 
     t_stop and dt in s. dt defaults to the CFL step (PHYSICS 2.1); it is clipped so that t never passes t_stop, and a
@@ -140,7 +147,7 @@ def make_step(scene, shards=1, axis_name=None):
     lay = Layout.of(scene, shards, axis_name)
     update = apic_update if scene.transfer == "apic" else seed_update
 
-    def step(params, state, t_stop=jnp.inf, dt=None):
+    def step(params: Params, state: State, t_stop: float | jax.Array = jnp.inf, dt: jax.Array | None = None) -> State:
         dt = _cfl_time_step(lay, params, state) if dt is None else jnp.asarray(dt, state.t.dtype)
         dt = jnp.clip(jnp.minimum(dt, t_stop - state.t), 0.0, None)
         active = dt > 0

@@ -7,6 +7,10 @@ Shapes: N particles, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
+
 from dataclasses import replace
 
 import jax
@@ -29,7 +33,7 @@ from jaxmpm.stages.layout import STAGES, apply_walls, mass_floor
 from jaxmpm.stages.particle_to_grid import body_acceleration
 
 
-def apic_update(lay, params, state, dt):
+def apic_update(lay: Layout, params: Params, state: State, dt: jax.Array) -> State:
     """APIC / MLS-MPM step with quadratic B-splines (D^-1 = 4 / h^2), for the peers' scene. One
     velocity field (Scene checks it). Transfers in the form of `forms.transfer_form()`:
       "cpu"  the particle data component-major (particles last): the particle-to-grid transfer

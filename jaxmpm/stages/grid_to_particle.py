@@ -9,6 +9,12 @@ Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.nodal import NodalSums
+
 from dataclasses import replace
 
 import jax
@@ -24,7 +30,17 @@ from jaxmpm.stages.multifield import ambient_pressure_by_phase, exchange_force
 from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, grid_shape, particle_radius, scatter_named
 
 
-def grid_to_particle(lay, params, state, st, beta, g, grid: GridUpdate, dt, m_min):
+def grid_to_particle(
+    lay: Layout,
+    params: Params,
+    state: State,
+    st: Stencil,
+    beta: jax.Array | None,
+    g: NodalSums,
+    grid: GridUpdate,
+    dt: jax.Array,
+    m_min: jax.Array,
+) -> tuple[State, jax.Array, jax.Array | None]:
     """Stage 4: (moved, L, p_amb): the State with the particles' new x, v (and energy, with
     drag_heating), the velocity gradient L (N, d, d) (3 x 3 axisymmetric) that drives their
     constitutive update, and the closure's ambient pressure at the particles (N,) Pa (E8) or None.

@@ -9,6 +9,12 @@ Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.nodal import NodalSums
+
 import jax
 
 from jaxmpm.numerics.transfer import scatter
@@ -18,7 +24,17 @@ from jaxmpm.stages.multifield import exchange_force, interface_force
 from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, nodal_stress_force
 
 
-def grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min):
+def grid_acceleration(
+    lay: Layout,
+    params: Params,
+    state: State,
+    st: Stencil,
+    beta: jax.Array | None,
+    g: NodalSums,
+    acc_p: jax.Array | None,
+    dt: jax.Array,
+    m_min: jax.Array,
+) -> GridUpdate:
     """Stage 3: nodal velocity v_old (walls applied) and acceleration a (K, n_nodes, d):
     internal force (E11), interface forces (E13), body forces, damping, implicit exchange (E3).
     Returns a `GridUpdate`: v_old, a, the DDMP operators or None, the closure's ambient pressure

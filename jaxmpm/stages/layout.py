@@ -3,6 +3,8 @@ once per step function by `Layout.of(scene)`; and the walls' velocity mask it ho
 
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass
 
 import jax
@@ -64,12 +66,12 @@ class Layout:
             phase=phase,
         )
 
-    def particle_sum(self, x):
+    def particle_sum(self, x: jax.Array) -> jax.Array:
         """A sum over particles completed across the devices: x is a scatter's nodal result
         (K, n_nodes, C) or (K, n_cells) from this device's particles; the same shape back."""
         return x if self.axis_name is None else jax.lax.psum(x, self.axis_name)
 
-    def particle_max(self, x):
+    def particle_max(self, x: jax.Array) -> jax.Array:
         """The maximum over particles of x (N,) or (N, ...), across the devices too: a scalar in
         x's units (here m/s for the CFL speeds, kg for the mass floor)."""
         m = jnp.max(x)
@@ -107,7 +109,7 @@ def boundary_mask(scene) -> np.ndarray | None:
     return mask
 
 
-def apply_walls(layout, v):
+def apply_walls(layout: Layout, v: jax.Array) -> jax.Array:
     """Nodal velocities or accelerations v (K, n_nodes, d) with the walls' components zeroed
     (`Layout.bc_mask`); v itself where the scene has no walls."""
     return v if layout.bc_mask is None else v * jnp.asarray(layout.bc_mask, v.dtype)
@@ -122,7 +124,7 @@ STAGES = ("1_shape_functions", "2_particle_to_grid", "3_grid_update", "4_grid_to
 STAGE_PARTS = ("ddmp_operators", "stress_force", "interface_force", "exchange", "remap", "velocity_gradient")
 
 
-def mass_floor(lay, state):
+def mass_floor(layout: Layout, state: Any) -> jax.Array:
     """The nodal mass below which a node counts as empty, kg: eps^2 times the largest particle mass."""
     eps = jnp.finfo(state.mass.dtype).eps
-    return lay.particle_max(state.mass) * eps**2
+    return layout.particle_max(state.mass) * eps**2

@@ -9,6 +9,13 @@ jaxmpm.stages.layout.Layout, `st` the step's stencil (stage 1). SI units.
 
 from __future__ import annotations
 
+import jax
+
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.layout import Layout
+
 import jax.numpy as jnp
 
 from jaxmpm.stages.closure import force_stress
@@ -16,7 +23,7 @@ from jaxmpm.stages.multifield import phase_pressure_and_compressibility, pressur
 from jaxmpm.stages.nodal import NodalSums, particle_radius, scatter_named, stress_parts
 
 
-def gravity_now(params, t):
+def gravity_now(params: Params, t: jax.Array) -> jax.Array:
     """Gravity (d,) at time t, ramped smoothly over params.gravity_ramp: g (1 - cos(pi t / T)) / 2."""
     T = params.gravity_ramp
     on = T > 0
@@ -24,7 +31,7 @@ def gravity_now(params, t):
     return params.gravity * jnp.where(on, r, 1.0)
 
 
-def body_acceleration(lay, params, state):
+def body_acceleration(lay: Layout, params: Params, state: State) -> jax.Array | None:
     """(N, d) per-particle body acceleration from gravity and per-phase body forces (m/s^2), or None."""
     scene = lay.scene
     acc = None
@@ -41,7 +48,7 @@ def body_acceleration(lay, params, state):
     return acc
 
 
-def particle_to_grid(lay, params, st, state, beta) -> NodalSums:
+def particle_to_grid(lay: Layout, params: Params, st: Stencil, state: State, beta: jax.Array | None) -> NodalSums:
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
     (nodal volume, stress share) and the multi-field stage (compressibility; E15's fit moments,
     which the continuity form scatters in `multifield.interface_force` instead) need.
