@@ -81,17 +81,17 @@ def cfl_time_step(scene: Scene, params: Params, state: State, cfl: jax.Array | N
     return _cfl_time_step(Layout.of(scene), params, state, cfl)
 
 
-def _cfl_time_step(lay: Layout, params: Params, state: State, cfl: jax.Array | None = None) -> jax.Array:
+def _cfl_time_step(layout: Layout, params: Params, state: State, cfl: jax.Array | None = None) -> jax.Array:
     cfl = params.cfl if cfl is None else cfl
     v2 = jnp.sum(state.v * state.v, axis=-1)
     moving = v2 > 0
-    speed = bulk_modulus_and_wave_speed(lay, params, state)[1] + jnp.where(
+    speed = bulk_modulus_and_wave_speed(layout, params, state)[1] + jnp.where(
         moving, jnp.sqrt(jnp.where(moving, v2, 1.0)), 0.0
     )  # finite grad at rest
-    return cfl * lay.scene.grid.h / lay.particle_max(speed)
+    return cfl * layout.scene.grid.h / layout.particle_max(speed)
 
 
-def seed_update(lay: Layout, params: Params, state: State, dt: jax.Array) -> State:
+def seed_update(layout: Layout, params: Params, state: State, dt: jax.Array) -> State:
     """One explicit step with the seed's update (PHYSICS 2.1 step 4) and linear, DDMP or B-spline
     gradients: v_p += dt sum_n a_n S_np, a remap of the particle momentum to the grid, and the
     stress driven by the gradient of the remapped velocity. Three variants (scene.transfer):
@@ -107,30 +107,30 @@ def seed_update(lay: Layout, params: Params, state: State, dt: jax.Array) -> Sta
         which moves particles with a velocity other than the one driving the stress: first order
         in dt (vibrating bar at CFL 0.02, 50 cells: 3.6e-7 m against 1.6e-8 m).
     """
-    scene = lay.scene
-    m_min = mass_floor(lay, state)
+    scene = layout.scene
+    m_min = mass_floor(layout, state)
     with jax.named_scope(STAGES[0]):  # 1
-        st = stencil(scene, state.x)
-        beta = ddmp_beta(st.xi) if scene.shape == "ddmp" else None
+        stencils = stencil(scene, state.x)
+        beta = ddmp_beta(stencils.xi) if scene.shape == "ddmp" else None
     with jax.named_scope(STAGES[1]):  # 2
-        g = particle_to_grid(lay, params, st, state, beta)
-        if lay.n_fields == 1:
+        sums = particle_to_grid(layout, params, stencils, state, beta)
+        if layout.n_fields == 1:
             # the nodal parts' cotangent as one array: XLA had fused its computation (about 130
             # operations per node) into the transposed scatter's gather, repeated per particle and
             # stencil node. One field: gradients 0.86-1.00 of the time before (elastic impact,
             # Taylor bars, 1D bars, interleaved); two fields 1.01-1.07, where the cotangent's computation
             # moved into the DDMP operators' transposes (benchmarks/NOTES.md, Gradients)
-            g = tangent_fenced(g, dt > 0)
-        acc_p = body_acceleration(lay, params, state)
+            sums = tangent_fenced(sums, dt > 0)
+        acc_p = body_acceleration(layout, params, state)
     with jax.named_scope(STAGES[2]):  # 3
-        grid = grid_acceleration(lay, params, state, st, beta, g, acc_p, dt, m_min)
+        grid = grid_acceleration(layout, params, state, stencils, beta, sums, acc_p, dt, m_min)
     with jax.named_scope(STAGES[3]):  # 4
-        moved, L, p_amb = grid_to_particle(lay, params, state, st, beta, g, grid, dt, m_min)
+        moved, L, p_amb = grid_to_particle(layout, params, state, stencils, beta, sums, grid, dt, m_min)
     with jax.named_scope(STAGES[4]):  # 5
         # L's cotangent as one array: XLA had fused its computation from the constitutive
         # update's transpose into each consumer in the velocity gradient's transpose, repeated per
         # stencil node (that stage's transpose: 8.8 -> 2.0-2.6 forward runs of it, benchmarks/NOTES.md)
-        new = constitutive(lay, params, moved, tangent_fenced(L, dt > 0), dt, p_amb)
+        new = constitutive(layout, params, moved, tangent_fenced(L, dt > 0), dt, p_amb)
     return replace(moved, t=state.t + dt, **new._asdict())
 
 
@@ -144,14 +144,14 @@ def make_step(scene: Scene, shards: int = 1, axis_name: str | None = None) -> Ca
     `jaxmpm.distributed.make_sharded_step`); scatters are summed and particle maxima taken
     across that axis, the grid update is repeated on every device.
     """
-    lay = Layout.of(scene, shards, axis_name)
+    layout = Layout.of(scene, shards, axis_name)
     update = apic_update if scene.transfer == "apic" else seed_update
 
     def step(params: Params, state: State, t_stop: float | jax.Array = jnp.inf, dt: jax.Array | None = None) -> State:
-        dt = _cfl_time_step(lay, params, state) if dt is None else jnp.asarray(dt, state.t.dtype)
+        dt = _cfl_time_step(layout, params, state) if dt is None else jnp.asarray(dt, state.t.dtype)
         dt = jnp.clip(jnp.minimum(dt, t_stop - state.t), 0.0, None)
         active = dt > 0
-        new = update(lay, params, state, dt)
+        new = update(layout, params, state, dt)
         return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, state)
 
     return step

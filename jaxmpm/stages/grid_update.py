@@ -25,12 +25,12 @@ from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, nodal_stress_force
 
 
 def grid_acceleration(
-    lay: Layout,
+    layout: Layout,
     params: Params,
     state: State,
-    st: Stencil,
+    stencils: Stencil,
     beta: jax.Array | None,
-    g: NodalSums,
+    sums: NodalSums,
     acc_p: jax.Array | None,
     dt: jax.Array,
     m_min: jax.Array,
@@ -42,36 +42,42 @@ def grid_acceleration(
     `grid_to_particle` forms it per phase, E8), the continuity form's volume rate v -> (N,)
     (`multifield.interface_force`) or None, the exchange's pair impulses (P, n_nodes, d) in N s
     with scene.drag_heating (`fields.exchange`), else None."""
-    scene = lay.scene
+    scene = layout.scene
     dtype = state.mass.dtype
-    dg = None
+    operators = None
     if beta is not None or scene.has_interface_forces:
         with jax.named_scope("ddmp_operators"):
-            dg = ddmp_operators(lay, st, g.volume[..., 0], dtype, state.volume)
-    m = g.mass
-    v = apply_walls(lay, fields.safe_div(g.momentum, m, m_min))
+            operators = ddmp_operators(layout, stencils, sums.volume[..., 0], dtype, state.volume)
+    m = sums.mass
+    v = apply_walls(layout, fields.safe_div(sums.momentum, m, m_min))
     with jax.named_scope("stress_force"):
-        f = nodal_stress_force(lay, dg, g)
+        f = nodal_stress_force(layout, operators, sums)
     p_amb, volume_rate = None, None
     if scene.has_interface_forces:
         with jax.named_scope("interface_force"):
-            I, p_amb, volume_rate = interface_force(lay, params, st, beta, state, g, dg, m_min)
+            I, p_amb, volume_rate = interface_force(layout, params, stencils, beta, state, sums, operators, m_min)
         f = f + I
     if acc_p is not None:
-        f = f + lay.particle_sum(
+        f = f + layout.particle_sum(
             scatter(
-                st, lay.field, st.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :], lay.n_fields, lay.n_nodes
+                stencils,
+                layout.field,
+                stencils.w[..., None] * (state.mass[:, None] * acc_p)[:, None, :],
+                layout.n_fields,
+                layout.n_nodes,
             )
         )
     a = fields.safe_div(f, m, m_min)
     if scene.damping is not None:
         a = a - params.damping * v
-    a = apply_walls(lay, a)
+    a = apply_walls(layout, a)
     impulses = None
     if scene.has_exchange:
         with jax.named_scope("exchange"):
-            F = exchange_force(lay, params, m[..., 0], g.volume[..., 0], v + dt * a, dt, m_min, scene.drag_heating)
+            F = exchange_force(
+                layout, params, m[..., 0], sums.volume[..., 0], v + dt * a, dt, m_min, scene.drag_heating
+            )
             if scene.drag_heating:
                 F, impulses = F
-        a = apply_walls(lay, a + fields.safe_div(F, m, m_min))
-    return GridUpdate(v, a, dg, p_amb, volume_rate, impulses)
+        a = apply_walls(layout, a + fields.safe_div(F, m, m_min))
+    return GridUpdate(v, a, operators, p_amb, volume_rate, impulses)

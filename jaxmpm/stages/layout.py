@@ -88,18 +88,18 @@ class Layout:
 
 def boundary_mask(scene) -> np.ndarray | None:
     """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1."""
-    g, b = scene.grid, scene.boundary
-    on_axis = scene.axisymmetric and g.origin[0] == 0.0
-    if all(b.kind(k, s) == "free" for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
+    grid, b = scene.grid, scene.boundary
+    on_axis = scene.axisymmetric and grid.origin[0] == 0.0
+    if all(b.kind(k, s) == "free" for k in range(grid.dim) for s in ("lo", "hi")) and not on_axis:
         return None
-    idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
-    mask = np.ones((g.n_nodes, g.dim))
-    for k in range(g.dim):
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in grid.nodes], indexing="ij"), -1).reshape(-1, grid.dim)
+    mask = np.ones((grid.n_nodes, grid.dim))
+    for k in range(grid.dim):
         for side in ("lo", "hi"):
             kind = b.kind(k, side)
             if kind == "free":
                 continue
-            near = idx[:, k] < b.layers if side == "lo" else idx[:, k] > g.cells[k] - b.layers
+            near = idx[:, k] < b.layers if side == "lo" else idx[:, k] > grid.cells[k] - b.layers
             if kind == "fixed":
                 mask[near, :] = 0.0
             else:

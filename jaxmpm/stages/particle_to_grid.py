@@ -3,8 +3,8 @@
 DDMP or interface forces need them), as a `NodalSums`; and the particles' body acceleration
 (gravity, ramped, and the phases' body forces).
 
-Shapes: N particles, S stencil nodes, K velocity fields, n nodes, d dimensions; `lay` is a
-jaxmpm.stages.layout.Layout, `st` the step's stencil (stage 1). SI units.
+Shapes: N particles, S stencil nodes, K velocity fields, n nodes, d dimensions; `layout` is a
+jaxmpm.stages.layout.Layout, `stencils` the step's stencil (stage 1). SI units.
 """
 
 from __future__ import annotations
@@ -31,37 +31,39 @@ def gravity_now(params: Params, t: jax.Array) -> jax.Array:
     return params.gravity * jnp.where(on, r, 1.0)
 
 
-def body_acceleration(lay: Layout, params: Params, state: State) -> jax.Array | None:
+def body_acceleration(layout: Layout, params: Params, state: State) -> jax.Array | None:
     """(N, d) per-particle body acceleration from gravity and per-phase body forces (m/s^2), or None."""
-    scene = lay.scene
+    scene = layout.scene
     acc = None
     if scene.gravity is not None:
         acc = jnp.broadcast_to(gravity_now(params, state.t), state.v.shape)
     if scene.body_force:
         b = jnp.concatenate(
             [
-                jnp.broadcast_to(params.body_force[p.name], (sl.stop - sl.start, lay.dim))
-                for p, sl in zip(scene.phases, lay.slices)
+                jnp.broadcast_to(params.body_force[p.name], (sl.stop - sl.start, layout.dim))
+                for p, sl in zip(scene.phases, layout.slices)
             ]
         )
         acc = b if acc is None else acc + b
     return acc
 
 
-def particle_to_grid(lay: Layout, params: Params, st: Stencil, state: State, beta: jax.Array | None) -> NodalSums:
+def particle_to_grid(
+    layout: Layout, params: Params, stencils: Stencil, state: State, beta: jax.Array | None
+) -> NodalSums:
     """Stage 2: one scatter of mass, momentum and stress force for all fields, plus what DDMP
     (nodal volume, stress share) and the multi-field stage (compressibility; E15's fit moments,
     which the continuity form scatters in `multifield.interface_force` instead) need.
     Returns the `NodalSums` (K, n_nodes, C)."""
     m, v, V = state.mass, state.v, state.volume
-    w = st.w[..., None]
+    w = stencils.w[..., None]
     parts = {"mass": w * m[:, None, None], "momentum": w * (m[:, None] * v)[:, None, :]}
-    parts.update(stress_parts(st, V, beta, force_stress(lay, params, state), particle_radius(lay, state)))
-    if beta is not None or lay.n_fields > 1:
+    parts.update(stress_parts(stencils, V, beta, force_stress(layout, params, state), particle_radius(layout, state)))
+    if beta is not None or layout.n_fields > 1:
         parts["volume"] = w * V[:, None, None]
-    if lay.scene.has_interface_forces:
-        p, kappa = phase_pressure_and_compressibility(lay, params, state)
-        if lay.scene.continuity_form != "transport":
-            parts["pressure_moments"] = pressure_moments(lay, st, p, V)  # (E15)
+    if layout.scene.has_interface_forces:
+        p, kappa = phase_pressure_and_compressibility(layout, params, state)
+        if layout.scene.continuity_form != "transport":
+            parts["pressure_moments"] = pressure_moments(layout, stencils, p, V)  # (E15)
         parts["compressible_volume"] = w * (V * kappa)[:, None, None]
-    return scatter_named(lay, st, parts)
+    return scatter_named(layout, stencils, parts)
