@@ -17,6 +17,3 @@ os.environ.setdefault("JAXMPM_NO_CACHE", "1")
 import jax
 
 jax.config.update("jax_enable_x64", True)
-# no implicit promotion between dtypes (int32 with int64, a bool with a float, ...): jaxmpm casts
-# explicitly, so that float32 and float64 runs compute what they say
-jax.config.update("jax_numpy_dtype_promotion", "strict")

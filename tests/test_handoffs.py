@@ -3,7 +3,9 @@ jaxmpm.stages.constitutive.ConstitutiveUpdate) whose fields are set exactly wher
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
+import pytest
 
 import jaxmpm
 from jaxmpm.numerics.shapes import ddmp_beta, stencil
@@ -56,3 +58,26 @@ def test_the_constitutive_update_names_state_fields():
     assert isinstance(new, ConstitutiveUpdate)
     assert set(new._fields) <= {f.name for f in dataclasses.fields(state)}
     assert jnp.array_equal(new.volume, state.volume)  # no velocity gradient: no change of volume
+
+
+def test_the_hand_offs_answer_the_keys_of_the_dicts_they_replace():
+    scene = jaxmpm.load_scene("elastic_impact", resolution=0.25)
+    lay, params, state, sums, grid = stages_2_and_3(scene)
+    assert sums["m"] is sums.mass and sums["mass"] is sums.mass and sums["f"] is sums.force
+    assert "vol" in sums and "pm" not in sums and sums[0] is sums.mass
+    new = constitutive(lay, params, state, jnp.zeros_like(state.F), jnp.asarray(1e-7))
+    assert new["eps_ps"] is new.eps_ps and new[0] is new.F
+
+
+@pytest.mark.parametrize(
+    "name, options",
+    [("elastic_impact", dict(resolution=0.25)), ("debris_cloud", dict(resolution=0.75, fields=2, drag_heating=True))],
+)
+def test_a_step_mixes_no_dtypes_implicitly(name, options):
+    """Under strict dtype promotion (no int32 with int64, no bool with a float): the step casts."""
+    scene = jaxmpm.load_scene(name, **options)
+    params = jaxmpm.default_params(scene)
+    state = jaxmpm.initial_state(scene, params)
+    with jax.numpy_dtype_promotion("strict"):
+        new = jax.jit(jaxmpm.make_step(scene))(params, state)
+    assert float(new.t) > 0

@@ -56,6 +56,10 @@ class ConstitutiveUpdate(NamedTuple):
     pressure: jax.Array  # (N,) Pa
     damage: jax.Array  # (N,) in [0, 1]
 
+    def __getitem__(self, key):
+        """A field by name (new["F"], as the dict of the versions before), or by position."""
+        return getattr(self, key) if isinstance(key, str) else tuple.__getitem__(self, key)
+
 
 def constitutive(layout, params, state, L, dt, p_amb=None):
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its

@@ -40,6 +40,32 @@ class NodalSums(NamedTuple):
     pressure_moments: jax.Array | None = None  # (K, n, C): the moments of the nodal phase pressure (E15)
     compressible_volume: jax.Array | None = None  # (K, n, 1) m^3/Pa: sum V_p kappa_p S_np
 
+    def __getitem__(self, key):
+        """A field by name, as the dict of the versions before (g["vol"], g["f"]: the old keys
+        m, mv, f, shv, shp, vol, pm, kvol name the fields mass, momentum, ...), or by position."""
+        if isinstance(key, str):
+            return getattr(self, OLD_KEYS.get(key, key))
+        return tuple.__getitem__(self, key)
+
+    def __contains__(self, key) -> bool:
+        """Whether a field (named as by `[]`) is set: `"vol" in g` as with the dict before."""
+        if isinstance(key, str):
+            return getattr(self, OLD_KEYS.get(key, key), None) is not None
+        return tuple.__contains__(self, key)
+
+
+# the keys of the dict the particle-to-grid scatter gave before NodalSums
+OLD_KEYS = {
+    "m": "mass",
+    "mv": "momentum",
+    "f": "force",
+    "shv": "stress_share",
+    "shp": "pressure_share",
+    "vol": "volume",
+    "pm": "pressure_moments",
+    "kvol": "compressible_volume",
+}
+
 
 def scatter_named(layout, stencils, parts, by_phase=False):
     """One scatter of several contributions {NodalSums field: (N, S, C)} -> NodalSums of (K, n_nodes, C),
