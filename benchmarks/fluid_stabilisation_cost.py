@@ -22,15 +22,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import dataclasses
-import datetime
 import statistics
 import sys
-import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 
 import jaxmpm
@@ -40,6 +36,7 @@ from jaxmpm.materials import elastic, models
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
+from timing import interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
 from test_fluids import dam_break  # noqa: E402
 
 
@@ -78,25 +75,15 @@ SCENES = {
 
 def per_step_ms(make_scene, configs, steps, repeats):
     """{config: [ms per step of each timed run]} with the configurations interleaved."""
-    loops = {}
-    for name, patches in configs.items():
+
+    def build(patches):
         with contextlib.ExitStack() as stack:
             for patch in patches:
                 stack.enter_context(patch())
             scene = make_scene()
-            params = jaxmpm.default_params(scene, dtype=jnp.float32)
-            step = jaxmpm.make_step(scene)
-            run = jaxmpm.jit(
-                lambda s, params=params, step=step: jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s)
-            )
-            loops[name] = (run, jax.block_until_ready(run(jaxmpm.init_state(scene, params))))  # traced here
-    times = {name: [] for name in configs}
-    for _ in range(repeats):
-        for name, (run, s) in loops.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(run(s))
-            times[name].append((time.perf_counter() - t0) / steps * 1e3)
-    return times
+            return step_loop(scene, jaxmpm.default_params(scene, dtype=jnp.float32), steps)  # traced here
+
+    return interleaved_ms_per_step({name: lambda p=p: build(p) for name, p in configs.items()}, steps, repeats)
 
 
 def main(argv=None):
@@ -130,15 +117,7 @@ def main(argv=None):
                 f"(runs {rows[-1]['runs_ms']})",
                 flush=True,
             )
-    with open(out, "w", newline="") as f:
-        f.write(
-            f"# jaxmpm fluid_stabilisation_cost, {datetime.date.today()}, jax {jax.__version__}, "
-            f"{jax.devices()[0].platform}, float32\n"
-        )
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {out}")
+    write_csv(out, "fluid_stabilisation_cost", rows, "float32")
 
 
 if __name__ == "__main__":

@@ -12,11 +12,8 @@ Run:  python benchmarks/fluid_viscosity_cost.py                 # 20 cells per a
 from __future__ import annotations
 
 import argparse
-import csv
-import datetime
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -29,6 +26,7 @@ import jaxmpm  # noqa: E402
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
+from timing import interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
 from test_fluids import dam_break  # noqa: E402
 
 CONFIGS = {"default (viscosity on fluids)": None, "artificial_viscosity (0, 0)": (0.0, 0.0)}
@@ -36,22 +34,12 @@ CONFIGS = {"default (viscosity on fluids)": None, "artificial_viscosity (0, 0)":
 
 def per_step_ms(cells, dtype, steps, repeats):
     """{config: [ms per step of each timed run]} with the configurations interleaved."""
-    loops = {}
-    for name, av in CONFIGS.items():
+
+    def build(av):
         scene = dam_break(cells, 8.0, artificial_viscosity=av)
-        params = jaxmpm.default_params(scene, dtype=dtype)
-        step = jaxmpm.make_step(scene)
-        run = jaxmpm.jit(
-            lambda s, params=params, step=step: jax.lax.fori_loop(0, steps, lambda i, s: step(params, s), s)
-        )
-        loops[name] = (run, jax.block_until_ready(run(jaxmpm.init_state(scene, params))))
-    times = {name: [] for name in CONFIGS}
-    for _ in range(repeats):
-        for name, (run, s) in loops.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(run(s))
-            times[name].append((time.perf_counter() - t0) / steps * 1e3)
-    return times
+        return step_loop(scene, jaxmpm.default_params(scene, dtype=dtype), steps)
+
+    return interleaved_ms_per_step({name: lambda av=av: build(av) for name, av in CONFIGS.items()}, steps, repeats)
 
 
 def main(argv=None):
@@ -84,14 +72,7 @@ def main(argv=None):
                 f"(runs {rows[-1]['runs_ms']})",
                 flush=True,
             )
-    with open(out, "w", newline="") as f:
-        f.write(
-            f"# jaxmpm fluid_viscosity_cost, {datetime.date.today()}, jax {jax.__version__}, {jax.devices()[0].platform}\n"
-        )
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {out}")
+    write_csv(out, "fluid_viscosity_cost", rows)
 
 
 if __name__ == "__main__":

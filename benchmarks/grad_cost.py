@@ -48,7 +48,7 @@ def problem(n_steps):
     sl = jaxmpm.model.state.phase_slices(scene)[0]
 
     def loss(theta, checkpoint):
-        p = dataclasses.replace(params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
+        p = dataclasses.replace(params, drag=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
         final, _ = jaxmpm.simulate(
             scene, p, state, t_end=scene.t_end, n_out=1, dt=dt, n_steps=n_steps, checkpoint=checkpoint
         )

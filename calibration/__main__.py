@@ -6,19 +6,27 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
-import optax
 
-import jaxmpm
-from calibration import data, plots
+from calibration import plots
 from calibration import fit as F
-from calibration.model import CloudModel, theta_of
+from calibration.arguments import (
+    c_h_values,
+    check_scene,
+    iterations,
+    measurements,
+    new_folder,
+    pair,
+    positive,
+    setup_model,
+    versions,
+)
+from calibration.fit_command import cmd_fit
+from calibration.model import theta_of
 from calibration import synthetic
 from jaxmpm.run import compile_cache
 from jaxmpm.scenes.impact import DEBRIS_VISCOSITY
@@ -27,148 +35,13 @@ from jaxmpm.numerics.compile import jit
 SEED_CH = (0.02, 0.15, 0.5, 1.0)
 
 
-def _new_folder(out) -> Path:
-    """The output folder, created; refuses one that holds a previous result, and a path through a file."""
-    out = Path(out)
-    blocker = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
-    if blocker is not None:
-        raise ValueError(
-            f"--out {out} is invalid: {blocker} exists and is not a folder (allowed a new folder or an empty one)"
-        )
-    if out.exists() and any(out.iterdir()):
-        raise FileExistsError(
-            f"--out {out}: the folder exists and is not empty: a previous result is never "
-            "overwritten (choose a new folder or remove it yourself)"
-        )
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ValueError(f"--out {out}: the folder cannot be created ({e.strerror or e})") from None
-    return out
-
-
-def _pair(text, flag):
-    try:
-        a, b = (float(x) for x in text.split(","))
-    except ValueError:
-        raise ValueError(f"{flag} {text!r} is invalid: allowed two numbers 'C_d,C_h', e.g. 2.0,0.3") from None
-    if not (0 < a < np.inf and 0 < b < np.inf):
-        raise ValueError(f"{flag} {text!r} is invalid: allowed C_d > 0 and C_h > 0 (finite)")
-    return a, b
-
-
-def _values(text, flag):
-    """The comma-separated C_h values of --c-h, each finite and > 0."""
-    try:
-        values = [float(x) for x in text.split(",")]
-    except ValueError:
-        raise ValueError(f"{flag} {text!r} is invalid: allowed comma-separated numbers, e.g. 0.02,0.15,0.5") from None
-    if not all(0 < v < np.inf for v in values):
-        raise ValueError(f"{flag} {text!r} is invalid: allowed C_h values > 0 (finite)")
-    return values
-
-
-def _positive(value, flag, what=""):
-    """value if it is finite and > 0."""
-    if not 0 < value < np.inf:
-        raise ValueError(f"{flag} {value} is invalid: allowed a finite number > 0{what}")
-    return value
-
-
-def _iterations(n):
-    if not (isinstance(n, int) and n >= 1):
-        raise ValueError(f"--iterations {n} is invalid: allowed an integer >= 1")
-    return n
-
-
-def _bounds(lo_hi, flag):
-    """(LO, HI) of a landscape axis: 0 < LO < HI, finite."""
-    lo, hi = lo_hi
-    if not 0 < lo < hi < np.inf:
-        raise ValueError(f"{flag} {lo} {hi} is invalid: allowed LO HI with 0 < LO < HI (finite)")
-    return lo, hi
-
-
-def _check_scene(args, fields):
-    """Refuse a bad --fields, --t-end or --resolution before any work; the debris_cloud scene, built
-    here without arrays (milliseconds), checks what remains: the resolution's lower bound."""
-    if args.fields not in fields:
-        raise ValueError(
-            f"--fields {args.fields} is invalid: allowed {' | '.join(map(str, fields))}"
-            + ("" if 1 in fields else " (C_d, the drag between the two velocity fields, has no effect with one field)")
-        )
-    _positive(args.t_end, "--t-end", " (s)")
-    _positive(args.resolution, "--resolution")
-    if not (args.step_safety >= 1 and args.step_safety < np.inf):
-        raise ValueError(f"--step-safety {args.step_safety} is invalid: allowed a finite number >= 1")
-    try:
-        jaxmpm.load_scene(
-            "debris_cloud",
-            resolution=args.resolution,
-            fields=args.fields,
-            t_end=args.t_end,
-            fragmentation=args.fragmentation,
-            drag_heating=args.drag_heating,
-            artificial_viscosity=tuple(args.artificial_viscosity),
-        )
-    except ValueError as e:
-        if args.drag_heating and args.fields != 2:
-            raise ValueError(
-                f"--drag-heating is invalid with --fields {args.fields}: allowed only with --fields 2 "
-                "(the heat is the drag's work between the two fields)"
-            ) from None
-        if "artificial_viscosity" in str(e):
-            raise ValueError(
-                f"--artificial-viscosity {' '.join(map(str, args.artificial_viscosity))} is invalid: allowed "
-                "two finite numbers >= 0 (C_LINEAR C_QUADRATIC)"
-            ) from None
-        raise ValueError(f"--resolution {args.resolution} is invalid: {e}") from None
-
-
-def _measurements(path):
-    """data.load(path); a missing, unreadable or bad table a usage error naming --data (data.load's
-    messages start with the path)."""
-    try:
-        return data.load(path)
-    except (ValueError, FileNotFoundError) as e:
-        raise ValueError(f"--data {e}" if path is not None else str(e)) from None
-    except OSError as e:
-        raise ValueError(f"--data {path}: the file cannot be read ({e.strerror or e})") from None
-
-
-def _versions():
-
-    return {
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "optax": optax.__version__,
-        "jaxmpm": jaxmpm.__version__,
-        "numpy": np.__version__,
-        "backend": jax.default_backend(),
-    }
-
-
-def _setup(args):
-    if not args.float32:
-        jax.config.update("jax_enable_x64", True)
-    return CloudModel.build(
-        resolution=args.resolution,
-        fields=args.fields,
-        t_end=args.t_end,
-        safety=args.step_safety,
-        fragmentation=args.fragmentation,
-        drag_heating=args.drag_heating,
-        artificial_viscosity=tuple(args.artificial_viscosity),
-    )
-
-
 def cmd_table(args) -> int:
-    values = _values(args.c_h, "--c-h")
-    _positive(args.drag, "--drag", " (C_d)")
-    _check_scene(args, fields=(1, 2))
-    meas = _measurements(args.data)
-    out = _new_folder(args.out)
-    model = _setup(args)
+    values = c_h_values(args.c_h, "--c-h")
+    positive(args.drag, "--drag", " (C_d)")
+    check_scene(args, fields=(1, 2))
+    meas = measurements(args.data)
+    out = new_folder(args.out)
+    model = setup_model(args)
     print(
         f"debris_cloud: resolution {args.resolution}, {args.fields} field(s), {model.state.x.shape[0]} particles, "
         f"{model.n_steps} steps to {model.t_end:g} s; C_h = {values} in one vmapped call",
@@ -220,158 +93,13 @@ def format_table(rows) -> str:
     return "\n".join(lines)
 
 
-def cmd_fit(args) -> int:
-    start = _pair(args.start, "--start")
-    _iterations(args.iterations)
-    if not (isinstance(args.starts, int) and args.starts >= 1):
-        raise ValueError(f"--starts {args.starts} is invalid: allowed an integer >= 1")
-    if args.starts > 1 and args.method != "adam":
-        raise ValueError(
-            f"--starts {args.starts} is invalid with --method {args.method}: allowed only with --method adam "
-            "(the starts advance together, one vmapped step each)"
-        )
-    _positive(args.learning_rate, "--learning-rate", " (Adam's step in log space)")
-    if not (args.landscape == 0 or args.landscape >= 2):
-        raise ValueError(f"--landscape {args.landscape} is invalid: allowed 0 (none) or an integer >= 2")
-    _bounds(args.landscape_cd, "--landscape-cd")
-    _bounds(args.landscape_ch, "--landscape-ch")
-    _check_scene(args, fields=(2,))
-    meas = _measurements(args.data)
-    out = _new_folder(args.out)
-    model = _setup(args)
-    print(
-        f"debris_cloud: resolution {args.resolution}, {args.fields} fields, {model.state.x.shape[0]} particles, "
-        f"{model.n_steps} steps to {model.t_end:g} s; start C_d = {start[0]:g}, C_h = {start[1]:g}",
-        flush=True,
-    )
-    t0 = time.perf_counter()
-    starts = None
-    if args.starts == 1:
-        res = F.fit(
-            model.velocities,
-            meas.experiment,
-            theta_of(*start),
-            iterations=args.iterations,
-            learning_rate=args.learning_rate,
-            progress=not args.no_progress,
-            method=args.method,
-        )
-    else:
-        thetas = F.spread_starts(start, args.starts, args.landscape_cd, args.landscape_ch)
-        multi = F.fit_starts(
-            model.velocities,
-            meas.experiment,
-            thetas,
-            iterations=args.iterations,
-            learning_rate=args.learning_rate,
-            progress=not args.no_progress,
-        )
-        res = multi.best_fit
-        starts = [
-            dict(
-                start_C_d=float(np.exp(th[0])),
-                start_C_h=float(np.exp(th[1])),
-                C_d=float(f.values[0]),
-                C_h=float(f.values[1]),
-                loss=f.loss,
-                residuals_km_s=np.asarray(f.residuals).tolist(),
-                iterations=len(f.history),
-                stopped=f.stopped,
-                best=k == multi.best,
-            )
-            for k, (th, f) in enumerate(zip(thetas, multi.fits))
-        ]
-        print(f"{args.starts} starts in one vmapped call ({multi.seconds:.1f} s); the best kept (*):")
-        print(f"{'':2}{'start C_d':>10}{'start C_h':>10}{'C_d':>10}{'C_h':>10}{'loss':>11}{'its':>5}")
-        for s in starts:
-            print(
-                f"{'*' if s['best'] else '':2}{s['start_C_d']:>10.4g}{s['start_C_h']:>10.4g}{s['C_d']:>10.4g}"
-                f"{s['C_h']:>10.4g}{s['loss']:>11.4g}{s['iterations']:>5}"
-            )
-    se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
-    c_d, c_h = res.values
-    print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
-    reached = model.reached(res.theta, progress=not args.no_progress)
-    if reached < model.t_end * (1 - 1e-6):
-        print(
-            f"warning: at the fit the run reaches only t = {reached:.4g} s of {model.t_end:g} s in {model.n_steps} "
-            "steps (its CFL step collapsed): the fitted velocities are not measured over the intended window"
-        )
-    print(f"C_d = {c_d:.4g} +- {se[0]:.2g}, C_h = {c_h:.4g} +- {se[1]:.2g} (Gauss-Newton, cond(J^T J) = {cond:.3g})")
-    fitted = meas.experiment + res.residuals
-    print(f"{'point':<8}{'experiment':>12}{'fit':>10}{'residual':>10}{'seed C_h=0.02':>15}")
-    for i, p in enumerate(meas.points):
-        seed = meas.seed.get(0.02, np.full(3, np.nan))[i]
-        print(f"{p:<8}{meas.experiment[i]:>12.3f}{fitted[i]:>10.3f}{res.residuals[i]:>10.3f}{seed:>15.3f}")
-    land = None
-    if args.landscape >= 2:
-        cds = np.geomspace(args.landscape_cd[0], args.landscape_cd[1], args.landscape)
-        chs = np.geomspace(args.landscape_ch[0], args.landscape_ch[1], args.landscape)
-        loss, _ = F.landscape(
-            lambda th: model.velocities_batch(th, allow_short=True, progress=not args.no_progress),
-            meas.experiment,
-            cds,
-            chs,
-        )
-        land = dict(C_d=cds.tolist(), C_h=chs.tolist(), loss=loss.tolist())
-    wall = time.perf_counter() - t0
-    result = dict(
-        fitted=dict(
-            C_d=float(c_d),
-            C_h=float(c_h),
-            se_C_d=float(se[0]),
-            se_C_h=float(se[1]),
-            se_log_C_d=float(se_theta[0]),
-            se_log_C_h=float(se_theta[1]),
-            jacobian_km_s=J.tolist(),
-            condition_JtJ=cond,
-        ),
-        loss=res.loss,
-        stopped=res.stopped,
-        reached_t_end=bool(reached >= model.t_end * (1 - 1e-6)),
-        points=list(meas.points),
-        experiment_km_s=meas.experiment.tolist(),
-        fitted_km_s=fitted.tolist(),
-        residuals_km_s=res.residuals.tolist(),
-        max_abs_residual_km_s=float(np.max(np.abs(res.residuals))),
-        history=res.history,
-        starts=starts,
-        landscape=land,
-        settings=dict(
-            resolution=args.resolution,
-            fields=args.fields,
-            fragmentation=args.fragmentation,
-            drag_heating=args.drag_heating,
-            artificial_viscosity=list(args.artificial_viscosity),
-            t_end=model.t_end,
-            n_steps=model.n_steps,
-            particles=int(model.state.x.shape[0]),
-            start=list(start),
-            starts=args.starts,
-            iterations=args.iterations,
-            method=args.method,
-            evaluations=res.evaluations,
-            learning_rate=args.learning_rate,
-            float32=args.float32,
-            data=meas.source,
-            wall_seconds=wall,
-            argv=sys.argv,
-        ),
-        versions=_versions(),
-    )
-    (out / "result.json").write_text(json.dumps(result, indent=1))
-    pngs = plots.fit_report(result, out)
-    print(f"wall time {wall:.1f} s\nwrote:\n  {out / 'result.json'}" + "".join(f"\n  {p}" for p in pngs))
-    return 0
-
-
 def cmd_synthetic(args) -> int:
     """Synthetic recovery on the small two-phase scene of calibration.synthetic: observables
     generated at (C_d, C_h) = --truth, the fit started at --start, recovered values printed."""
     jax.config.update("jax_enable_x64", True)
-    truth, start = _pair(args.truth, "--truth"), _pair(args.start, "--start")
-    _iterations(args.iterations)
-    out = _new_folder(args.out)
+    truth, start = pair(args.truth, "--truth"), pair(args.start, "--start")
+    iterations(args.iterations)
+    out = new_folder(args.out)
     model = synthetic.DebrisInWaterModel.build()
     print(
         f"debris_in_water: {model.state.x.shape[0]} particles, {model.n_steps} steps to {model.scene.t_end:g} s; "
@@ -413,7 +141,7 @@ def cmd_synthetic(args) -> int:
             wall_seconds=res.seconds,
             argv=sys.argv,
         ),
-        versions=_versions(),
+        versions=versions(),
     )
     (out / "result.json").write_text(json.dumps(result, indent=1))
     print(f"wrote:\n  {out / 'result.json'}")
@@ -421,6 +149,7 @@ def cmd_synthetic(args) -> int:
 
 
 def build_parser():
+    # longer than 60 lines on purpose: one declaration per command and flag, in the order --help lists them
     ap = argparse.ArgumentParser(
         prog="python -m calibration", description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter
     )

@@ -175,6 +175,7 @@ def fit(
     velocities: theta (2,) -> (3,) km/s (or any observables), differentiable; target: of its shape.
     learning_rate > 0 and decay in (0, 1] (Adam's rate at iteration k: learning_rate * decay^k);
     weights: None (all 1) or >= 0 of target's shape. Bad arguments raise ValueError before any run."""
+    # longer than 60 lines on purpose: one optimiser loop (Adam or L-BFGS) with its stopping tests and history
     check_options(iterations, learning_rate, decay, tol, rtol, patience, method)
     target, theta0, weights = check_arrays(velocities, target, theta0, weights)
     loss = loss_fn(velocities, target, weights)
@@ -279,6 +280,8 @@ def fit_starts(
     start's theta is then held while the others go on. Returns a MultiStartResult: a FitResult per
     start (its best iterate and history, as `fit` would give it alone) and the index of the best.
     Bad arguments raise ValueError before any run."""
+    # longer than 60 lines on purpose: one optimiser loop over the vmapped starts with their stopping tests and
+    # history
     check_options(iterations, learning_rate, decay, tol, rtol, patience, "adam")
     starts = check_starts(theta0s)
     target, _, weights = check_arrays(velocities, target, starts[0], weights)

@@ -52,41 +52,35 @@ class CloudModel:
         theta = jnp.asarray(theta, dt)
         new = dict(c_h=jnp.exp(theta[1]))
         if self.scene.drag is not None:
-            new["drag_coefficient"] = jnp.exp(theta[0])
+            new["drag"] = jnp.exp(theta[0])
         return dataclasses.replace(self.params, **new)
 
     def velocities_of_history(self, history):
         """(3,) km/s, downstream positive, of points 1, 2, 4 from a history."""
         return -features.feature_velocities(self.scene, history, first=self.first) / 1000.0
 
-    def velocities(self, theta, checkpoint="auto"):
-        """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
-        _, hist = jaxmpm.simulate(
+    def run(self, theta, **options):
+        """(final, history) of the fixed-length run at theta = (log C_d, log C_h), allowed to fall
+        short of t_end (see `reached`); options: simulate's checkpoint, progress."""
+        return jaxmpm.simulate(
             self.scene,
             self.with_theta(theta),
             self.state,
             t_end=self.t_end,
             n_out=self.n_out,
             n_steps=self.n_steps,
-            checkpoint=checkpoint,
             allow_short=True,
-        )  # see `reached`
-        return self.velocities_of_history(hist)
+            **options,
+        )
+
+    def velocities(self, theta, checkpoint="auto"):
+        """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
+        return self.velocities_of_history(self.run(theta, checkpoint=checkpoint)[1])
 
     def reached(self, theta, progress=True):
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
-        final, _ = jaxmpm.simulate(
-            self.scene,
-            self.with_theta(theta),
-            self.state,
-            t_end=self.t_end,
-            n_out=self.n_out,
-            n_steps=self.n_steps,
-            allow_short=True,
-            progress=progress,
-        )
-        return float(final.t)
+        return float(self.run(theta, progress=progress)[0].t)
 
     def velocities_batch(self, thetas, allow_short=False, progress=True):
         """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`); with
@@ -94,7 +88,7 @@ class CloudModel:
         thetas = np.asarray(thetas, dtype=float)
         values = dict(c_h=np.exp(thetas[:, 1]))
         if self.scene.drag is not None:
-            values["drag_coefficient"] = np.exp(thetas[:, 0])
+            values["drag"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
         final, hist = jaxmpm.ensemble(
             self.scene,

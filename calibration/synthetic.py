@@ -90,7 +90,7 @@ class DebrisInWaterModel:
 
     def with_theta(self, theta):
         theta = jnp.asarray(theta, self.params.c_h.dtype)
-        return dataclasses.replace(self.params, drag_coefficient=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
+        return dataclasses.replace(self.params, drag=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
 
     def final(self, theta):
         final, _ = jaxmpm.simulate(

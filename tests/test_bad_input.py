@@ -446,8 +446,8 @@ CASES = [
     ),
     (
         "Params negative drag",
-        lambda: run_with_params(drag_coefficient=jnp.asarray(-1.0)),
-        r"params\.drag_coefficient = -1\.0 is invalid: allowed >= 0",
+        lambda: run_with_params(drag=jnp.asarray(-1.0)),
+        r"params\.drag = -1\.0 is invalid: allowed >= 0",
     ),
     (
         "Params non-finite C_h",

@@ -118,6 +118,8 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
     and not `overwrite`, if either is a directory, or if a folder of `path` is a file; ValueError
     if the history is not a State or any of its fields does not fit the scene.
     """
+    # longer than 60 lines on purpose: the file's groups and datasets written one after another, in the file's
+    # order
     h5 = _h5_path(path)
     xdmf = xdmf_path(h5)
     check_new(h5, xdmf, overwrite=overwrite)  # and neither is a directory, even with overwrite

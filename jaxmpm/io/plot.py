@@ -21,6 +21,7 @@ def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
     coloured by damage where any particle is damaged (the crack pattern). Returns the path.
     Raises FileExistsError if `path` exists and not `overwrite` (or is a directory); ValueError if
     `path` does not end in .png or the state does not fit the scene."""
+    # longer than 60 lines on purpose: one figure drawn top to bottom (matplotlib calls on shared axes)
     from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     path = Path(path)
@@ -160,6 +161,7 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
     kinetic, internal and total energy against time over every output. Each snapshot panel is as
     wide as the grid's aspect asks (a tall axisymmetric grid gets narrow panels side by side, not
     a wide figure of empty space); legends sit outside the data."""
+    # longer than 60 lines on purpose: one figure drawn top to bottom (matplotlib calls on shared axes)
     from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
     from matplotlib.ticker import MaxNLocator  # as Figure: loaded when drawn
 

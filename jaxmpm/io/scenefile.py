@@ -114,6 +114,8 @@ def _typed(value, types, where, allowed):
 
 def scene_from_dict(d: Mapping) -> Scene:
     """Build a Scene from the dict form of a scene file. ValueError names the field on bad input."""
+    # longer than 60 lines on purpose: one section of the scene file after another, each read and checked where
+    # it is met
     d = _check_keys(d, TOP_KEYS, "")
     if "grid" not in d:
         raise ValueError("grid is missing: a scene needs a [grid] table with cells and h")

@@ -14,143 +14,37 @@ Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
-# the geometry lives in jaxmpm.model.geometry; its names stay importable from here
+# the geometry and the scene's parts live in jaxmpm.model.geometry and jaxmpm.model.parts; their
+# names stay importable from here
 from jaxmpm.model.geometry import (
-    GEOMETRIES,
+    GEOMETRIES as GEOMETRIES,
     Box as Box,
     Difference as Difference,
     Grid as Grid,
     Sphere as Sphere,
-    fail as _fail,
-    as_float as _float,
-    as_floats as _floats,
-    is_integer as _is_integer,
     geometry_from_dict as geometry_from_dict,
 )
+from jaxmpm.model.parts import (
+    AXES as AXES,
+    BOUNDARIES as BOUNDARIES,
+    CONTINUITY as CONTINUITY,
+    DENSITY_DIFFUSION,
+    FACE_NAMES as FACE_NAMES,
+    FLUID_VISCOSITY,
+    FRAGMENTATION as FRAGMENTATION,
+    MAX_PPC as MAX_PPC,
+    SHAPES as SHAPES,
+    TRANSFERS as TRANSFERS,
+    Boundary,
+    Phase,
+    is_fluid,
+)
 from jaxmpm.materials import Material, resolve_material
-from jaxmpm.materials.models import model_of, split_model
 from jaxmpm.model.memory import check_scene_memory
 from jaxmpm.model.sampling import check_sampling
-
-SHAPES = ("linear", "ddmp", "bspline2")
-TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
-BOUNDARIES = ("free", "slip", "separating", "fixed")
-AXES = "xyz"
-MAX_PPC = 8  # particles per cell per axis, at most
-FLUID_VISCOSITY = (0.5, 2.0)  # (c_linear, c_quadratic) of the fluid phases' default artificial viscosity
-# delta of the fluids' density diffusion (Scene.density_diffusion): delta-SPH's value (Antuono et al.
-# 2010, Comput. Phys. Commun. 181, 532), whose density diffusion term it is
-DENSITY_DIFFUSION = 0.1
-
-
-def is_fluid(model_name: str) -> bool:
-    """Whether a model kind has no shear strength: 'linear_fluid' or an equation of state alone
-    (a hydrocode composition without a strength part: tait, ideal_gas, stiffened_gas, ...)."""
-    if model_name == "linear_fluid":
-        return True
-    model = model_of(model_name)
-    if not model.hydro:
-        return False
-    return not split_model(model_name)[1]
-
-
-# ----------------------------------------------------------------------------------- phases
-@dataclass(frozen=True)
-class Phase:
-    """One material (phase) of the scene.
-
-    name: unique label. material: a library key (see `jaxmpm.materials.known_keys()`), a key of the
-    scene's own `materials`, or a `Material`. geometry: Box, Sphere or Difference. velocity: initial velocity
-    (m/s). field: index of the velocity field the phase moves with (phases in one field share the
-    grid velocity). ppc: particles per cell per axis. fraction: initial volume fraction of the phase
-    where it is (in (0, 1]; < 1 for interpenetrating mixtures): scales particle volume and mass.
-    """
-
-    name: str
-    material: Any
-    geometry: Any
-    velocity: tuple[float, ...] | None = None
-    field: int = 0
-    ppc: int = 2
-    fraction: float = 1.0
-
-    def __post_init__(self):
-        if not isinstance(self.name, str) or not self.name.isidentifier():
-            _fail("phase.name", self.name, "an identifier (letters, digits, underscore)")
-        if not isinstance(self.geometry, tuple(GEOMETRIES.values())):
-            _fail(f"phase.{self.name}.geometry", self.geometry, "Box, Sphere or Difference")
-        dim = len(self.geometry.lo)
-        v = (0.0,) * dim if self.velocity is None else self.velocity
-        object.__setattr__(self, "velocity", _floats(f"phase.{self.name}.velocity", v, dim))
-        if not _is_integer(self.field) or self.field < 0:
-            _fail(f"phase.{self.name}.field", self.field, "an integer >= 0")
-        if not _is_integer(self.ppc) or not 1 <= self.ppc <= MAX_PPC:
-            _fail(f"phase.{self.name}.ppc", self.ppc, f"an integer in [1, {MAX_PPC}]")
-        object.__setattr__(self, "field", int(self.field))
-        object.__setattr__(self, "ppc", int(self.ppc))
-        frac = _float(f"phase.{self.name}.fraction", self.fraction)
-        if not 0 < frac <= 1:
-            _fail(f"phase.{self.name}.fraction", frac, "(0, 1]")
-        object.__setattr__(self, "fraction", frac)
-
-    def to_dict(self):
-        mat = self.material if isinstance(self.material, str) else self.material.key
-        return {
-            "name": self.name,
-            "material": mat,
-            "field": self.field,
-            "ppc": self.ppc,
-            "fraction": self.fraction,
-            "velocity": list(self.velocity),
-            "geometry": self.geometry.to_dict(),
-        }
-
-
-@dataclass(frozen=True)
-class Boundary:
-    """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero),
-    'separating' (slip, but the material may leave the wall: only the normal velocity into the
-    wall is zeroed, the peers' mpm88 condition) or 'fixed' (velocity zero). `layers` is the number
-    of node layers a condition applies to."""
-
-    faces: tuple[tuple[str, str], ...] = ()
-    layers: int = 1
-
-    def __post_init__(self):
-        if isinstance(self.faces, Mapping):
-            pairs = list(self.faces.items())
-        else:
-            try:
-                pairs = [tuple(f) for f in self.faces] if not isinstance(self.faces, (str, bytes)) else None
-            except TypeError:
-                pairs = None
-            if pairs is None or any(len(f) != 2 or isinstance(f[0], str) and len(f[0]) == 1 for f in pairs):
-                _fail("boundary.faces", self.faces, "pairs (face, kind), e.g. (('y_lo', 'fixed'),), or a dict")
-        names = [k for k, _ in pairs]
-        for k in names:
-            if names.count(k) > 1:
-                _fail(f"boundary.{k}", [v for n, v in pairs if n == k], "one condition per face (it is given twice)")
-        faces = dict(pairs)
-        for k, v in faces.items():
-            if k not in FACE_NAMES:
-                _fail(f"boundary.{k}", v, f"face names {FACE_NAMES}")
-            if v not in BOUNDARIES:
-                _fail(f"boundary.{k}", v, " | ".join(BOUNDARIES))
-        object.__setattr__(self, "faces", tuple(sorted(faces.items())))
-        if not isinstance(self.layers, int) or isinstance(self.layers, bool) or not 1 <= self.layers <= 4:
-            _fail("boundary.layers", self.layers, "an integer in [1, 4]")
-
-    def kind(self, axis: int, side: str) -> str:
-        return dict(self.faces).get(f"{AXES[axis]}_{side}", "free")
-
-
-FRAGMENTATION = ("failed", "plastic", "tensile")
-CONTINUITY = ("auto", "off", "transport")
-FACE_NAMES = tuple(f"{a}_{s}" for a in AXES for s in ("lo", "hi"))
+from jaxmpm.model.scene_checks import check_scene_fields
 
 
 # ----------------------------------------------------------------------------------- scene
@@ -198,8 +92,8 @@ class Scene:
         D = tanh(eps_t / C_h) held in the State's damage, and alpha acts on tension only (compressive
         pressure kept): a shock is untouched (docs/closure.md).
       artificial_viscosity: (c_linear, c_quadratic) of the von Neumann-Richtmyer shock viscosity
-        q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (defaults of Params.av_linear and
-        av_quadratic) for every phase; only with equation-of-state (hydrocode) models. None
+        q = rho h (c_q h (tr D)^2 - c_l c tr D) in compression (the defaults of
+        Params.artificial_viscosity) for every phase; only with equation-of-state (hydrocode) models. None
         (default): FLUID_VISCOSITY = (0.5, 2.0) for the fluid phases (no shear strength:
         `is_fluid`) with the FLIP-like transfers ('musl', 'seed', 'seed_halfstep'), none for the
         other phases and with 'apic'. (0, 0): none at all. Why: without it a free-surface flow
@@ -259,212 +153,9 @@ class Scene:
     window: tuple[int, ...] | None = None
 
     def __post_init__(self):
-        if not isinstance(self.grid, Grid):
-            _fail("grid", self.grid, "a Grid")
-        dim = self.grid.dim
-        for name, kind in (("phases", Phase), ("materials", Material)):
-            items = getattr(self, name)
-            if (
-                isinstance(items, (str, bytes, Phase, Material))
-                or not isinstance(items, Iterable)
-                or not all(isinstance(x, kind) for x in items)
-            ):
-                _fail(name, items, f"a tuple of {kind.__name__}")
-        for name in ("name", "description"):
-            if not isinstance(getattr(self, name), str):
-                _fail(name, getattr(self, name), "a string")
-        phases = tuple(self.phases)
-        if not phases:
-            _fail("phase", phases, "at least one [[phase]]")
-        object.__setattr__(self, "phases", phases)
-        object.__setattr__(self, "materials", tuple(self.materials))
-        names = [p.name for p in phases]
-        for n in names:
-            if names.count(n) > 1:
-                _fail("phase.name", n, "unique names (two phases share it)")
-        for p in phases:
-            if len(p.geometry.lo) != dim:
-                _fail(f"phase.{p.name}.geometry", p.geometry.to_dict(), f"{dim} coordinates per point (grid is {dim}D)")
-            for d in range(dim):
-                lo, hi = self.grid.origin[d], self.grid.hi[d]
-                if d == 0 and self.axisymmetric is True and lo == 0.0:
-                    lo = -hi  # a body on the axis may be given whole (a sphere centred at r = 0)
-                if p.geometry.lo[d] < lo - 1e-12 * abs(hi - lo) or p.geometry.hi[d] > hi + 1e-12 * abs(hi - lo):
-                    _fail(
-                        f"phase.{p.name}.geometry",
-                        p.geometry.to_dict(),
-                        f"inside the grid: axis {AXES[d]} in [{lo}, {hi}] m (a particle would lie outside the grid)",
-                    )
-        fields = sorted({p.field for p in phases})
-        if fields != list(range(len(fields))):
-            bad = [p for p in phases if p.field >= len(fields)][0]
-            _fail(f"phase.{bad.name}.field", bad.field, f"fields numbered 0..{len(fields) - 1} without gaps")
-        keys = [m.key for m in self.materials]
-        for k in keys:
-            if keys.count(k) > 1:
-                _fail("materials", k, "unique material keys")
-        by_key = {m.key: ("materials", m) for m in self.materials}
-        for p in phases:  # resolves now: an unknown key fails here, listing the known ones
-            m = resolve_material(p.material, self.materials, f"phase.{p.name}.material")
-            where, other = by_key.setdefault(m.key, (f"phase.{p.name}", m))
-            if other != m:  # a scene file (and every output's /scene) names a material by its key alone
-                _fail(
-                    f"phase.{p.name}.material",
-                    m.key,
-                    f"one material per key: {where} has another material of key {m.key!r} (rename one)",
-                )
-        if self.shape not in SHAPES:
-            _fail("shape", self.shape, " | ".join(SHAPES))
-        if self.transfer not in TRANSFERS:
-            _fail("transfer", self.transfer, " | ".join(TRANSFERS))
-        if self.transfer == "apic" and self.shape != "bspline2":
-            _fail("transfer", self.transfer, "'apic' only with shape = 'bspline2'")
-        if self.gravity is not None:
-            object.__setattr__(self, "gravity", _floats("effects.gravity", self.gravity, dim))
-        ramp = _float("effects.gravity_ramp", self.gravity_ramp)
-        if ramp < 0:
-            _fail("effects.gravity_ramp", ramp, ">= 0 s")
-        if ramp > 0 and self.gravity is None:
-            _fail("effects.gravity_ramp", ramp, "only with effects.gravity (it ramps gravity in)")
-        object.__setattr__(self, "gravity_ramp", ramp)
-        if self.damping is not None:
-            c = _float("effects.damping", self.damping)
-            if c < 0:
-                _fail("effects.damping", c, ">= 0 1/s")
-            object.__setattr__(self, "damping", c)
-        if not isinstance(self.body_force, bool):
-            _fail("effects.body_force", self.body_force, "true | false")
-        for name, unit, positive in (
-            ("drag", "", False),
-            ("drag_length", "m", True),
-            ("linear_drag", "kg/(m^3 s)", False),
-        ):
-            val = getattr(self, name)
-            if val is not None:
-                val = _float(f"effects.{name}", val)
-                if val < 0 or (positive and val == 0):
-                    _fail(f"effects.{name}", val, f"{'> 0' if positive else '>= 0'}{' ' + unit if unit else ''}")
-                object.__setattr__(self, name, val)
-        if self.drag_length is not None and self.drag is None:
-            _fail("effects.drag_length", self.drag_length, "only with effects.drag (the length of its drag law, E3)")
-        if self.has_closure:
-            ch = _float("effects.c_h", self.c_h)
-            if not ch > 0:
-                _fail("effects.c_h", ch, "> 0")
-            object.__setattr__(self, "c_h", ch)
-        if self.artificial_viscosity is not None:
-            av = _floats("effects.artificial_viscosity", self.artificial_viscosity, 2)
-            if min(av) < 0:
-                _fail("effects.artificial_viscosity", list(av), "[c_linear, c_quadratic] with both >= 0")
-            object.__setattr__(self, "artificial_viscosity", av)
-            for p in self.phases:
-                m = self.material(p)
-                # (linear_fluid recomputes its stress from F each step, so a q added to it does not accumulate)
-                if not (model_of(m.model).hydro or is_fluid(m.model)):
-                    _fail(
-                        "effects.artificial_viscosity",
-                        list(av),
-                        f"only with equation-of-state models and linear_fluid: phase {p.name!r} uses {m.model!r}",
-                    )
-        delta = _float("effects.density_diffusion", self.density_diffusion)
-        if not 0 <= delta <= 1:
-            _fail("effects.density_diffusion", delta, "[0, 1] (dimensionless; 0: off)")
-        object.__setattr__(self, "density_diffusion", delta)
-        if not isinstance(self.axisymmetric, bool):
-            _fail("axisymmetric", self.axisymmetric, "true | false")
-        if self.axisymmetric:
-            if dim != 2:
-                _fail("axisymmetric", True, f"only with a 2D (r, z) grid (grid is {dim}D)")
-            if self.grid.origin[0] < 0:
-                _fail("grid.origin[0]", self.grid.origin[0], ">= 0 m (the radius of an axisymmetric grid)")
-            if self.shape == "bspline2" or self.transfer == "apic":
-                _fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
-        if self.window is not None:
-            w = self.window
-            ok = (
-                isinstance(w, (tuple, list))
-                and len(w) == dim
-                and all(_is_integer(c) and 1 <= c <= n for c, n in zip(w, self.grid.cells))
-            )
-            if not ok:
-                _fail("window", w, f"None or {dim} integers, cells per axis in 1..grid.cells = {list(self.grid.cells)}")
-            object.__setattr__(self, "window", tuple(int(c) for c in w))
-        if not isinstance(self.interface_forces, bool):
-            try:
-                sub = tuple(sorted(set(int(k) for k in self.interface_forces)))
-                ok = all(_is_integer(k) for k in self.interface_forces)
-            except (TypeError, ValueError):
-                ok = False
-            if not ok or len(sub) < 2 or not all(0 <= k < self.n_fields for k in sub):
-                _fail(
-                    "effects.interface_forces",
-                    self.interface_forces,
-                    f"true | false | a list of >= 2 velocity fields in 0..{self.n_fields - 1} that share the common pressure",
-                )
-            object.__setattr__(self, "interface_forces", True if len(sub) == self.n_fields else sub)
-        if self.continuity not in CONTINUITY:
-            _fail("effects.continuity", self.continuity, " | ".join(repr(c) for c in CONTINUITY))
-        if self.continuity == "transport" and not self._continuity_possible:
-            _fail(
-                "effects.continuity",
-                self.continuity,
-                "'auto' | 'off' unless the scene has >= 2 velocity fields with interface forces and transfer = 'musl'",
-            )
-        if self.fragmentation not in FRAGMENTATION:
-            _fail("effects.fragmentation", self.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
-        if self.has_closure and self.transfer == "apic":
-            _fail("effects.c_h", self.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
-        if self.n_fields > 1 and (self.shape == "bspline2" or self.transfer == "apic"):
-            _fail("shape", self.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
-        if not isinstance(self.boundary, Boundary):
-            _fail("boundary", self.boundary, "a Boundary")
-        for face, kind in self.boundary.faces:
-            if AXES.index(face.split("_")[0]) >= dim:
-                _fail(f"boundary.{face}", kind, f"faces of the {dim}D grid's axes {FACE_NAMES[: 2 * dim]}")
-        for k in range(dim):
-            sides = sum(self.boundary.kind(k, side) != "free" for side in ("lo", "hi"))
-            if sides * self.boundary.layers > self.grid.cells[k]:
-                _fail(
-                    "boundary.layers",
-                    self.boundary.layers,
-                    f"at most {self.grid.cells[k] // sides} on axis {AXES[k]} ({self.grid.cells[k]} cells, walls on {sides} "
-                    "side(s)): more would constrain every node of the axis",
-                )
-        cfl = _float("cfl", self.cfl)
-        if not 0 < cfl <= 1:
-            _fail("cfl", cfl, "(0, 1]")
-        object.__setattr__(self, "cfl", cfl)
-        t_end = _float("t_end", self.t_end)
-        if not t_end > 0:
-            _fail("t_end", t_end, "> 0 s")
-        object.__setattr__(self, "t_end", t_end)
-        if not isinstance(self.n_out, int) or isinstance(self.n_out, bool) or self.n_out < 1:
-            _fail("output.n_out", self.n_out, "an integer >= 1")
-        if not isinstance(self.drag_heating, bool):
-            _fail("effects.drag_heating", self.drag_heating, "true | false")
-        if self.drag_heating and not self.has_exchange:
-            _fail(
-                "effects.drag_heating",
-                self.drag_heating,
-                "false unless the scene has an exchange (effects.drag or "
-                "effects.linear_drag, and phases in two or more velocity fields)",
-            )
-        if self.drag_heating and self.transfer != "musl":
-            _fail(
-                "effects.drag_heating",
-                self.drag_heating,
-                "false unless transfer = 'musl' (the heat is the drag's work at the remap of the step's own positions)",
-            )
-        if self.window is not None and self.shape != "ddmp" and not self.has_interface_forces and not self.has_exchange:
-            _fail(
-                "window",
-                list(self.window),
-                "None unless the scene has DDMP operators (shape 'ddmp', or interface "
-                "forces between velocity fields) or an exchange between fields",
-            )
-        check_scene_memory(
-            self, itemsize=4
-        )  # before sampling (grid at float32, the least a run holds): refused, not swapped
+        check_scene_fields(self)  # jaxmpm.model.scene_checks: each field, in order
+        # before sampling (grid at float32, the least a run holds): refused, not swapped
+        check_scene_memory(self, itemsize=4)
         check_sampling(self)  # every phase has particles, all inside the grid's usable region
 
     # ------------------------------------------------------------------ derived static facts
@@ -497,7 +188,8 @@ class Scene:
         return self.n_fields > 1 and self.interface_forces is not False
 
     @property
-    def _continuity_possible(self) -> bool:
+    def continuity_possible(self) -> bool:
+        """Whether the continuity form (E7) can be on: interface forces and transfer = 'musl'."""
         return self.has_interface_forces and self.transfer == "musl"
 
     @property
@@ -507,7 +199,7 @@ class Scene:
         'musl'), else 'off'."""
         if self.continuity != "auto":
             return self.continuity
-        return "transport" if self._continuity_possible else "off"
+        return "transport" if self.continuity_possible else "off"
 
     @property
     def viscous_phases(self) -> tuple[bool, ...]:

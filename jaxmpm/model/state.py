@@ -151,6 +151,7 @@ def check_state(scene, state: State) -> None:
     """Raise ValueError naming the field, the particle (index and phase) and the allowed range if a
     concrete State does not fit the scene: array shapes, finite values, mass and volume > 0,
     damage in [0, 1], plastic strain >= 0, det F > 0, particles inside the grid."""
+    # longer than 60 lines on purpose: one check per State field, in the fields' order, each a few lines
     if not isinstance(state, State):
         raise ValueError(f"state = {type(state).__name__} is invalid: allowed a jaxmpm.State")
     slices = phase_slices(scene)

@@ -292,7 +292,9 @@ def cell_weight(expected, cell_volume):
     1 / FILL_RAMP times the one its own material gives it. Cells holding a fair share of material
     count fully, as before, and any nonnegative weights keep E11/E12 adjoint and exact for linear
     fields. expected, cell_volume: (K, *cells) m^d (per radian if axisymmetric)."""
-    return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0)
+    return jnp.clip(safe_div(cell_volume, FILL_RAMP * expected, 0.0), 0.0, 1.0) * (cell_volume > 0).astype(
+        cell_volume.dtype
+    )
 
 
 def _cell_integrator(grid, dtype, axisymmetric, r_c=None):

@@ -76,8 +76,8 @@ def _product_of_list(arrays):
 def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     d, h = grid.dim, grid.h
     xi = (x - jnp.asarray(grid.origin, x.dtype)) / h
-    base = jnp.clip(jnp.floor(xi - base_shift).astype(jnp.int32), lo_clip, np.asarray(grid.cells) - hi_clip)
-    fx = xi - base
+    base = jnp.clip(jnp.floor(xi - base_shift).astype(jnp.int32), lo_clip, np.asarray(grid.cells, np.int32) - hi_clip)
+    fx = xi - base.astype(xi.dtype)
     off = stencil_offsets(d, width)  # (S, d)
     n = x.shape[0]
     w1, dw1 = w1d(fx), dw1d(fx) / h  # (N, width, d)
@@ -96,7 +96,9 @@ def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     strides = jnp.asarray(node_strides(grid.nodes))
     node = jnp.sum((base[:, None, :] + jnp.asarray(off)[None]) * strides, -1)
     cell_strides = jnp.asarray(node_strides(grid.cells))
-    cell = jnp.sum(jnp.clip(jnp.floor(xi).astype(jnp.int32), 0, np.asarray(grid.cells) - 1) * cell_strides, -1)
+    cell = jnp.sum(
+        jnp.clip(jnp.floor(xi).astype(jnp.int32), 0, np.asarray(grid.cells, np.int32) - 1) * cell_strides, -1
+    )
     dpos = (jnp.asarray(off, x.dtype)[None] - fx[:, None, :]) * h
     return Stencil(node=node, w=w, dw=dw, cell=cell, xi=fx, dpos=dpos)
 

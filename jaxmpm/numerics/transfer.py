@@ -41,7 +41,7 @@ from jaxmpm.numerics.shapes import stencil_offsets
 
 
 def _rows(st, field, n_nodes):
-    return st.node if field is None else st.node + (field * n_nodes)[:, None]
+    return st.node if field is None else st.node + (field * int(n_nodes))[:, None].astype(st.node.dtype)
 
 
 def scatter(st, field, contrib, n_fields, n_nodes):
@@ -76,7 +76,7 @@ def cell_count(st, field, n_fields, n_cells, dtype):
 
 def cell_sum(st, field, n_fields, n_cells, values):
     """(K, n_cells) sum of a particle quantity (N,) over the particles of each field in each cell."""
-    rows = st.cell if field is None else st.cell + field * n_cells
+    rows = st.cell if field is None else st.cell + (field * int(n_cells)).astype(st.cell.dtype)
     return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)
 
 
@@ -136,8 +136,8 @@ def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
     width, shift, hi_clip, weights_1d = TENSOR_SHAPES[shape]
     d = grid.dim
     xi = ((x - jnp.asarray(grid.origin, x.dtype)) / grid.h).T  # (d, N)
-    base = jnp.clip(jnp.floor(xi - shift).astype(jnp.int32), 0, (np.asarray(grid.cells) - hi_clip)[:, None])
-    fx = xi - base
+    base = jnp.clip(jnp.floor(xi - shift).astype(jnp.int32), 0, (np.asarray(grid.cells, np.int32) - hi_clip)[:, None])
+    fx = xi - base.astype(xi.dtype)
     w1 = jnp.stack(weights_1d(fx))  # (width, d, N)
     strides = node_strides(grid.nodes)
     flat = sum(base[k] * int(strides[k]) for k in range(d))
@@ -161,7 +161,7 @@ def _at_offset(ost, i):
     for k in range(1, d):
         w = w * ost.w1[o[k], k]
     dpos = (o.astype(ost.fx.dtype)[:, None] - ost.fx) * ost.h
-    node = ost.base + jnp.sum(o * jnp.asarray(ost.strides))
+    node = ost.base + jnp.sum(o * jnp.asarray(ost.strides)).astype(ost.base.dtype)
     return w, dpos, node
 
 

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxmpm.model.numbers import OLD_NAMES, warn_old_name
 from jaxmpm.model.params import Params, check_params
 from jaxmpm.model.state import check_state
 from jaxmpm.numerics.compile import jit
@@ -77,11 +78,12 @@ def batch_size(batch) -> int:
 
 
 def sweep(params: Params, **values) -> Params:
-    """Params with a leading batch axis: each named top-level field (c_h, drag_coefficient, cfl, ...)
+    """Params with a leading batch axis: each named top-level field (c_h, drag, cfl, ...)
     takes the given values in turn; all other numbers are repeated. Several fields must have equal
     lengths (zipped, not crossed: cross them with numpy.meshgrid first). A vector field takes a list
     of vectors, e.g. gravity=[[0, -9.81], [0, -1.62]]."""
     names = {f.name for f in dataclasses.fields(Params)} - {"phases", "body_force"}
+    values = _new_names(params, values)
     n = None
     for k, v in values.items():
         if k not in names:
@@ -104,6 +106,28 @@ def sweep(params: Params, **values) -> Params:
     batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), params)
     dtype = jnp.result_type(params.cfl)
     return dataclasses.replace(batch, **{k: jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+def _new_names(params: Params, values: dict) -> dict:
+    """sweep's values under the table's names, in their order: an old name (drag_coefficient,
+    av_linear, av_quadratic) warns and becomes its new one (an entry of a pair fills that column of
+    the pair)."""
+    out = {}
+    for k, v in values.items():
+        if k not in OLD_NAMES:
+            out[k] = v
+            continue
+        warn_old_name(k, stacklevel=4)
+        new, index = OLD_NAMES[k]
+        if index is None:
+            out[new] = v
+            continue
+        column = np.asarray(v, dtype=float)
+        pair = np.asarray(getattr(params, new), dtype=float)
+        pair = np.array(out.get(new, values.get(new, np.broadcast_to(pair, column.shape + pair.shape))), dtype=float)
+        pair[..., index] = column
+        out[new] = pair
+    return out
 
 
 def _shard(batch, n: int):
@@ -187,6 +211,8 @@ def ensemble(
     how many; up to REPLANS times, where every member got at least half way). Where n_steps was
     given, or still too few, a RuntimeError names the member and the time it reached, unless
     allow_short (then check final.t)."""
+    # longer than 60 lines on purpose: the checks of its arguments, then one vmapped run and its replanning;
+    # they share the batch's plan
     t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)

@@ -13,11 +13,9 @@ Two drivers share one step:
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import signal
-import threading
 import time
 import warnings
 
@@ -28,12 +26,14 @@ from jax.experimental import checkify
 from tqdm.auto import tqdm
 
 from jaxmpm.model.sampling import usable_region
-from jaxmpm.model.state import phase_slices
 from jaxmpm.numerics.compile import jit
 from jaxmpm.run.distributed import from_shards, make_sharded_step, mesh_size
+from jaxmpm.run.health import CHECKED_FIELDS as CHECKED_FIELDS, find_nonfinite, finite_and_inside, health_fn
 from jaxmpm.run.planning import compile_seconds, planned_steps
+from jaxmpm.run.progress import REPORTS, progress_bar as progress_bar, report_steps
+from jaxmpm.run.signals import Interrupted, StopRequest, interrupt_on as interrupt_on
 from jaxmpm.run.tangents import evolving_tangents
-from jaxmpm.step import cfl_time_step, make_step
+from jaxmpm.step import make_step
 
 
 def is_traced(tree) -> bool:
@@ -58,16 +58,6 @@ def _chunk_fn(scene, length, mesh=None):
         return jax.lax.scan(body, state, None, length=length)[0]
 
     return run
-
-
-CHECKED_FIELDS = ("x", "v", "stress", "volume", "energy")  # the particle fields a run checks are finite
-
-
-def finite_and_inside(state, lo, hi):
-    """(finite, inside): whether every particle's CHECKED_FIELDS are finite, and every particle lies
-    in the grid's usable region [lo, hi] (`usable_region`); two boolean scalars, traceable."""
-    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in CHECKED_FIELDS]))
-    return finite, jnp.all((state.x >= lo) & (state.x <= hi))
 
 
 @functools.lru_cache(maxsize=8)
@@ -160,40 +150,6 @@ def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
     )
 
 
-# The progress bar of the fixed-length run in flight (`fixed_fn` with report=True), fed by
-# jax.debug.callback from inside the compiled scan: steps done, counted on the host.
-_PROGRESS = {"bar": None}
-REPORTS = 100  # progress updates per fixed-length run, at most
-
-
-def _report_steps(done):
-    bar = _PROGRESS["bar"]
-    done = int(np.max(np.asarray(done)))  # the same count from every member or device
-    if bar is None:
-        return
-    if not _PROGRESS.get("running"):  # the first report: compiling is over, the clock starts
-        bar.reset(total=bar.total)
-        bar.set_postfix_str("running")
-        _PROGRESS["running"] = True
-    if done > bar.n:
-        bar.update(done - bar.n)
-
-
-@contextlib.contextmanager
-def progress_bar(total: int, desc: str, enabled: bool):
-    """A tqdm bar of `total` steps that `fixed_fn(..., report=True)` advances while it runs."""
-    if not enabled:
-        yield
-        return
-    _PROGRESS["bar"] = tqdm(total=total, unit="step", desc=desc, postfix="compiling")
-    _PROGRESS["running"] = False
-    try:
-        yield
-    finally:
-        _PROGRESS["bar"].close()
-        _PROGRESS["bar"] = None
-
-
 @functools.lru_cache(maxsize=32)
 def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint (`checkpoint_mode`):
@@ -201,12 +157,12 @@ def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     residuals, MiB each); "steps": each step under jax.checkpoint, its input state stored and the
     step recomputed in reverse (memory ~ n_out n_per_out states); "nested": `_nested_scan`,
     memory ~ n_out + 2 sqrt(n_per_out) states for one more forward pass. report: tell the host
-    the steps done (`_report_steps`) up to REPORTS times (nested: after each interval)."""
+    the steps done (`report_steps`) up to REPORTS times (nested: after each interval)."""
     step = _step_of(scene, mesh)
     every = max(1, (n_per_out * n_out) // REPORTS)
 
     def tell(done, now):
-        jax.lax.cond(now, lambda: jax.debug.callback(_report_steps, done), lambda: None)
+        jax.lax.cond(now, lambda: jax.debug.callback(report_steps, done), lambda: None)
 
     @jit
     def run(params, state, times, dt):
@@ -236,51 +192,12 @@ def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     return run
 
 
-@functools.lru_cache(maxsize=32)
-def _health_fn(scene):
-    """Jitted on-device check of a chunk's result: (everything finite and inside the grid, CFL dt).
-    Only these two scalars cross to the host each chunk; arrays do only when a check fails."""
-    _, lo, hi = usable_region(scene)
-
-    @jit
-    def health(params, state):
-        ok, inside = finite_and_inside(state, lo, hi)
-        return ok & inside, cfl_time_step(scene, params, state)
-
-    return health
-
-
-def _phase_of(scene, i):
-    return next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
-
-
-def find_nonfinite(scene, state):
-    """None if every particle value is finite and every particle inside the grid, else a message
-    naming the field, the phase and the particle index."""
-    for name in CHECKED_FIELDS:
-        a = np.asarray(getattr(state, name))
-        bad = ~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            return f"non-finite {name} at t = {float(state.t):.6g} s: phase {_phase_of(scene, i)!r}, particle {i}"
-    _, lo, hi = usable_region(scene)
-    x = np.asarray(state.x)
-    out = np.any((x < lo) | (x > hi), axis=1)
-    if out.any():
-        i = int(np.argmax(out))
-        return (
-            f"particle {i} of phase {_phase_of(scene, i)!r} is outside the grid at t = {float(state.t):.6g} s: "
-            f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)"
-        )
-    return None
-
-
 def first_failure(scene, params, state, stop, dt, length, mesh=None):
     """(step, message): the first of `length` steps from `state` toward `stop` after which a
     particle is non-finite or outside the grid, replayed one step at a time, with
     `find_nonfinite`'s message for the state after it; None where no step of them fails. The same
     account of a failure whether the chunk ran with checks (debug) or without."""
-    one, health = _chunk_fn(scene, 1, mesh), _health_fn(scene)
+    one, health = _chunk_fn(scene, 1, mesh), health_fn(scene)
     for i in range(int(length)):
         state = one(params, state, stop, dt)
         if not bool(health(params, state)[0]):
@@ -302,55 +219,6 @@ def _failure_text(found, n_chunk, length, end_message=None) -> str:
 # A chunk (default length) does at most this many particle-steps (and at least 10 steps): its first
 # one, after which a run's time is estimated (`RunPlan.first_chunk`), takes seconds, not hours.
 CHUNK_PARTICLE_STEPS = 20_000_000
-
-
-class Interrupted(KeyboardInterrupt):
-    """A host-driven run stopped by a signal (SIGINT, or SIGTERM where `interrupt_on` handles it)
-    after its current chunk, its restart file (if any) saved. signum: the signal's number."""
-
-    def __init__(self, signum: int, message: str = ""):
-        super().__init__(message or f"stopped by {signal.Signals(signum).name}")
-        self.signum = signum
-
-
-def interrupt_on(signum, frame):
-    """A signal handler that raises `Interrupted` (a KeyboardInterrupt), so that `finally` blocks
-    clean up; `jaxmpm run` installs it for SIGTERM. While the host driver runs, it defers the
-    signals handled by this or by Python's default SIGINT handler to the end of its chunk."""
-    raise Interrupted(signum)
-
-
-class _StopRequest:
-    """The signal received while the host driver defers them (signum; None: none). Between
-    `install` and `restore` (on the main thread), SIGINT under Python's default handler, and
-    SIGINT or SIGTERM under `interrupt_on`, only record it: the driver checks it between chunks,
-    saves and raises `Interrupted`. (A KeyboardInterrupt raised at any bytecode could land in a
-    weakref callback, where Python prints it and carries on: a lost Ctrl-C; or cut a save short.)
-    A second signal stops at once: the handlers as before, Interrupted raised."""
-
-    def __init__(self):
-        self.signum = None
-        self.previous = {}
-
-    def install(self):
-        if threading.current_thread() is not threading.main_thread():
-            return
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            h = signal.getsignal(sig)
-            if h is interrupt_on or (sig == signal.SIGINT and h is signal.default_int_handler):
-                self.previous[sig] = h
-                signal.signal(sig, self.handler)
-
-    def handler(self, signum, frame):
-        if self.signum is not None:
-            self.restore()
-            raise Interrupted(signum, "stopped at once by a second signal: the restart file holds its last save")
-        self.signum = signum
-
-    def restore(self):
-        for sig, h in self.previous.items():
-            signal.signal(sig, h)
-        self.previous = {}
 
 
 def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
@@ -393,6 +261,8 @@ def host_driver(
     refuse the run before anything is saved. restart_saved: `restart_file` already holds this run's
     save (a resumed run): saves append to it from the first. write_restart: the function that
     writes the restart file (`jaxmpm.restart.save`), where restart_file is given."""
+    # longer than 60 lines on purpose: one loop whose state (chunk length, output index, time, restart saves,
+    # the deferred signal) every part reads and sets; split, the parts would pass all of it around
     t0 = float(state.t) if t0 is None else t0
     times = [t0 + (t_end - t0) * (i + 1) / n_out for i in range(n_out)]
     if chunk is None:
@@ -413,7 +283,7 @@ def host_driver(
                 )
             return new
 
-    health = _health_fn(scene)
+    health = health_fn(scene)
     bar = None
     if progress:
         bar = tqdm(
@@ -457,7 +327,7 @@ def host_driver(
         )
         raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
-    request = _StopRequest()
+    request = StopRequest()
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:

@@ -83,6 +83,7 @@ def simulate(
       (None: $JAXMPM_MAX_MINUTES, else 60) raises a ValueError before it saves anything, unless
       yes=True. announce: a callable given the plan's and the estimate's lines (`jaxmpm run`: print).
     """
+    # longer than 60 lines on purpose: its arguments' checks one after another, then the choice of driver
     t_end = scene.t_end if t_end is None else seconds("t_end", t_end)
     n_out = scene.n_out if n_out is None else count("n_out", n_out)
     n_steps = None if n_steps is None else count("n_steps", n_steps)

@@ -122,6 +122,8 @@ def rod_penetration(
     the stress of the loaded metal drove the air beside it to tens of km/s within 2 us). Air in the
     solids' field (one field) is refused: it reached 25 km/s within 4 us and the run failed at 43 us.
     """
+    # longer than 60 lines on purpose: a builder: its options' checks, then the bodies, materials and effects of
+    # one scene
     options.check(
         "rod_penetration",
         rod_penetration_ranges(diameter),

@@ -22,7 +22,7 @@ def alpha(gate, eps_ps, c_h):
     return 1.0 - gate * jnp.tanh(eps_ps / c_h)
 
 
-def fragmentation_gate(lay, state):
+def fragmentation_gate(layout, state):
     """(N,) the factor G of alpha = 1 - G tanh(eps_ps / C_h): with scene.fragmentation 'failed',
     the damage D of particles whose phase can fail and 1 for the others; with 'plastic', 1.
 
@@ -32,58 +32,61 @@ def fragmentation_gate(lay, state):
     with alpha p only, so the shock died in the plate. On the debris cloud at resolution 1 (one
     field, C_h = 0.02) points 1, 2, 4 came out at 5.33, 5.33, 6.10 km/s with 'plastic' against
     5.96, 6.09, 4.87 with 'failed' and 5.97, 6.00, 4.87 with no closure (experiment 6.3, 6.1, 3.9)."""
-    scene = lay.scene
+    scene = layout.scene
     if scene.fragmentation == "plastic":
         return jnp.ones_like(state.eps_ps)
     gated = np.concatenate(
-        [np.full(sl.stop - sl.start, fails(scene.material(p).model), bool) for p, sl in zip(scene.phases, lay.slices)]
+        [
+            np.full(sl.stop - sl.start, fails(scene.material(p).model), bool)
+            for p, sl in zip(scene.phases, layout.slices)
+        ]
     )
     if not gated.any():
         return jnp.ones_like(state.eps_ps)
     return jnp.where(jnp.asarray(gated), state.damage, 1.0)
 
 
-def closure_alpha(lay, params, state):
+def closure_alpha(layout, params, state):
     """(E5) alpha = 1 - G tanh(eps_ps / C_h): 1 for intact material, -> 0 when fragmented; G the
     fragmentation gate (damage of phases that can fail, else 1: `fragmentation_gate`). With
     fragmentation 'tensile', alpha = 1 - D, D = tanh(eps_t / C_h) the fragmented fraction that the
     State's damage holds (`tensile_fragment_fraction`). (N,)"""
-    if lay.scene.fragmentation == "tensile":
+    if layout.scene.fragmentation == "tensile":
         return 1.0 - state.damage
-    return alpha(fragmentation_gate(lay, state), state.eps_ps, params.c_h)
+    return alpha(fragmentation_gate(layout, state), state.eps_ps, params.c_h)
 
 
-def pressure_factor(lay, params, state):
+def pressure_factor(layout, params, state):
     """(N,) the factor a of the particle pressure in the closure's grid force, common pressure and
     volume rate (E4, E8): alpha, except with fragmentation 'tensile', where a = alpha only in
     tension (p < 0) and 1 in compression: fragments in contact carry compression, not tension."""
-    alpha = closure_alpha(lay, params, state)
-    if lay.scene.fragmentation == "tensile":
-        return jnp.where(pressure(lay, state) < 0, alpha, 1.0)
+    alpha = closure_alpha(layout, params, state)
+    if layout.scene.fragmentation == "tensile":
+        return jnp.where(pressure(layout, state) < 0, alpha, 1.0)
     return alpha
 
 
-def force_stress(lay, params, state):
+def force_stress(layout, params, state):
     """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the pressure scaled by
     the closure's factor a (`pressure_factor`), sigma + (1 - a) p I, so a fragmented material does
     no work through a volume change it does not have (p = state.pressure, the pressure the stress
     holds)."""
-    if not lay.scene.has_closure:
+    if not layout.scene.has_closure:
         return state.stress
     d = state.stress.shape[-1]
-    p = pressure(lay, state)
-    return state.stress + ((1 - pressure_factor(lay, params, state)) * p)[:, None, None] * jnp.eye(
+    p = pressure(layout, state)
+    return state.stress + ((1 - pressure_factor(layout, params, state)) * p)[:, None, None] * jnp.eye(
         d, dtype=state.stress.dtype
     )
 
 
-def grid_pressure(lay, params, state):
+def grid_pressure(layout, params, state):
     """(N,) the particle pressure the grid sees (Pa): with the closure (E8) a p (`pressure_factor`),
     so that a fragmented material's pressure acts on no node through the common pressure (E6,
     E13) either; without it, p."""
-    p = pressure(lay, state)
-    if lay.scene.has_closure:
-        p = pressure_factor(lay, params, state) * p
+    p = pressure(layout, state)
+    if layout.scene.has_closure:
+        p = pressure_factor(layout, params, state) * p
     return p
 
 
@@ -99,17 +102,17 @@ def tensile_fragment_fraction(c_h, damage, counted):
     return tanh_sum(damage, jnp.tanh(counted / c_h))
 
 
-def tension_mask(lay, state):
+def tension_mask(layout, state):
     """(N,) 1.0 where this step's plastic strain counts toward fragmentation (fragmentation
     'tensile'): where the particle is in tension at the step's start, p < 0 (p with the artificial
     viscosity, >= 0). A shock compresses (p > 0): its plastic strain never counts. Else 0.0."""
-    return (pressure(lay, state) < 0).astype(state.mass.dtype)
+    return (pressure(layout, state) < 0).astype(state.mass.dtype)
 
 
 EQUILIBRATING_STRAIN_MAX = 1.0  # |(p - p_amb) / K| bound of the closure (E8), log volume strain
 
 
-def material_volume_rate(lay, params, state, L, dt, p_amb):
+def material_volume_rate(layout, params, state, L, dt, p_amb):
     """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
     B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
     relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s.
@@ -128,12 +131,12 @@ def material_volume_rate(lay, params, state, L, dt, p_amb):
     finite) the linearisation asks for log-strains of hundreds in one step and the volume
     overflows. The bound never acts at the strains of the validation scenes (|p - p_amb| / K < 0.3
     in shocked aluminium at 6.7 km/s)."""
-    alpha = pressure_factor(lay, params, state)
-    K, c = bulk_modulus_and_wave_speed(lay, params, state)
-    tau = lay.scene.grid.h / c
+    alpha = pressure_factor(layout, params, state)
+    K, c = bulk_modulus_and_wave_speed(layout, params, state)
+    tau = layout.scene.grid.h / c
     x = dt / tau
     relax = jnp.where(x > 1e-8, -jnp.expm1(-x) / jnp.where(x > 1e-8, x, 1.0), 1.0) / tau
-    strain = jnp.clip((pressure(lay, state) - p_amb) / K, -EQUILIBRATING_STRAIN_MAX, EQUILIBRATING_STRAIN_MAX)
+    strain = jnp.clip((pressure(layout, state) - p_amb) / K, -EQUILIBRATING_STRAIN_MAX, EQUILIBRATING_STRAIN_MAX)
     B = (1 - alpha) * strain * relax
     return alpha * jnp.trace(L, axis1=1, axis2=2) + B
 

@@ -7,6 +7,9 @@ Shapes: N particles, d dimensions; SI units.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -22,30 +25,48 @@ from jaxmpm.stages.closure import (
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, per_model, pressure
 
 
-def artificial_viscosity(lay, params, state, rho_new, trD):
+def artificial_viscosity(layout, params, state, rho_new, trD):
     """von Neumann-Richtmyer pressure q = rho l (c_q l (tr D)^2 - c_l c tr D) in compression
     (tr D < 0), 0 in expansion; l the cell size h, c the bulk sound speed. (N,) Pa"""
-    K, _ = bulk_modulus_and_wave_speed(lay, params, state)
+    K, _ = bulk_modulus_and_wave_speed(layout, params, state)
     c = jnp.sqrt(K / (state.mass / state.volume))
-    l = lay.scene.grid.h
+    l = layout.scene.grid.h
     comp = jnp.minimum(trD, 0.0)
-    return rho_new * l * (params.av_quadratic * l * comp**2 - params.av_linear * c * comp)
+    c_linear, c_quadratic = params.artificial_viscosity[0], params.artificial_viscosity[1]
+    return rho_new * l * (c_quadratic * l * comp**2 - c_linear * c * comp)
 
 
-def viscous_particles(lay):
+def viscous_particles(layout):
     """(N,) static bool: whether each particle's phase takes the artificial viscosity
     (scene.viscous_phases)."""
     return np.concatenate(
-        [np.full(sl.stop - sl.start, on, bool) for on, sl in zip(lay.scene.viscous_phases, lay.slices)]
+        [np.full(sl.stop - sl.start, on, bool) for on, sl in zip(layout.scene.viscous_phases, layout.slices)]
     )
 
 
-def constitutive(lay, params, state, L, dt, p_amb=None):
+class ConstitutiveUpdate(NamedTuple):
+    """What the constitutive stage (5) gives the step: the new values of these State fields (N
+    particles, m the material dimension: 3 axisymmetric, else d)."""
+
+    F: jax.Array  # (N, m, m) deformation gradient
+    stress: jax.Array  # (N, m, m) Cauchy stress, Pa
+    volume: jax.Array  # (N,) m^3 (per radian axisymmetric)
+    energy: jax.Array  # (N,) J/kg specific internal energy
+    eps_ps: jax.Array  # (N,) equivalent plastic strain
+    pressure: jax.Array  # (N,) Pa
+    damage: jax.Array  # (N,) in [0, 1]
+
+    def __getitem__(self, key):
+        """A field by name (new["F"], as the dict of the versions before), or by position."""
+        return getattr(self, key) if isinstance(key, str) else tuple.__getitem__(self, key)
+
+
+def constitutive(layout, params, state, L, dt, p_amb=None):
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
     model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
-    values, sigma_f the stress the grid sees), plastic strain and damage. Returns the new fields as a
-    dict of State field names."""
-    scene = lay.scene
+    values, sigma_f the stress the grid sees), plastic strain and damage. Returns a `ConstitutiveUpdate`
+    (the new values of those State fields)."""
+    scene = layout.scene
     d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
     carried = rate  # the volume rate the velocity field imposes on the material (E4's a div<v>)
@@ -54,10 +75,10 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
     tensile = scene.has_closure and scene.fragmentation == "tensile"
     if scene.has_closure:
         p_amb = jnp.zeros_like(state.mass) if p_amb is None else p_amb
-        rate = material_volume_rate(lay, params, state, L, dt, p_amb)
-        carried = pressure_factor(lay, params, state) * jnp.trace(L, axis1=1, axis2=2)
+        rate = material_volume_rate(layout, params, state, L, dt, p_amb)
+        carried = pressure_factor(layout, params, state) * jnp.trace(L, axis1=1, axis2=2)
         L_mat = L + ((rate - jnp.trace(L, axis1=1, axis2=2)) / d)[:, None, None] * jnp.eye(d, dtype=L.dtype)
-        gate = tension_mask(lay, state) if tensile else fragmentation_gate(lay, state)
+        gate = tension_mask(layout, state) if tensile else fragmentation_gate(layout, state)
     vol = state.volume * jnp.exp(dt * rate)
     rho_new = state.mass / vol
     q = None
@@ -66,14 +87,14 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
         # a fragment contracting to relieve its own tension is no shock. Driven by B, q turned
         # tensile fragments' pressure positive, the pressure's factor a to 1, and the fragments
         # pushed their neighbours with a pressure no velocity field compressed (docs/closure.md)
-        q = artificial_viscosity(lay, params, state, rho_new, carried)
+        q = artificial_viscosity(layout, params, state, rho_new, carried)
         if not all(scene.viscous_phases):
-            q = jnp.where(jnp.asarray(viscous_particles(lay)), q, 0.0)
+            q = jnp.where(jnp.asarray(viscous_particles(layout)), q, 0.0)
     work = dt * 0.5 * (vol + state.volume) / state.mass
     mp = MatPoint(
         state.F,
         state.stress,
-        pressure(lay, state),
+        pressure(layout, state),
         state.energy,
         state.eps_ps,
         state.damage,
@@ -86,11 +107,11 @@ def constitutive(lay, params, state, L, dt, p_amb=None):
         alpha_of = alpha_of_strain(tensile, params.c_h, gate, m0.eps_ps, m0.damage, m0.pressure)
         return tuple(model.update(c, m0, L_mat, D, dt, work, q, alpha_of))
 
-    new = MatPoint(*per_model(lay, params, update, L_mat, D, work, q, gate, *mp))
+    new = MatPoint(*per_model(layout, params, update, L_mat, D, work, q, gate, *mp))
     damage = new.damage
     if tensile:
         damage = tensile_fragment_fraction(params.c_h, damage, gate * jnp.maximum(new.eps_ps - state.eps_ps, 0.0))
-    return dict(
+    return ConstitutiveUpdate(
         F=new.F,
         stress=new.stress,
         volume=vol,

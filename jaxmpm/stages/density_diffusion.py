@@ -16,7 +16,7 @@ from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 BAROTROPIC = ("linear_fluid", "tait", "linear")  # fluid models, and equations of state, whose p depends on rho alone
 
 
-def diffused_particles(lay):
+def diffused_particles(layout):
     """(N,) static bool: the particles of the barotropic fluid phases (`is_fluid`, the model
     or its equation of state in BAROTROPIC), which take the density diffusion with DDMP and the
     'musl' update (not with the closure, E4, whose volume rate is its own), or None where no
@@ -24,7 +24,7 @@ def diffused_particles(lay):
     (`density_diffusion_rate`). An equation of state with an energy term is left out: its contact
     discontinuities (density jumps at one pressure) are not to be smoothed. None too where the
     scene's `density_diffusion` is 0."""
-    scene = lay.scene
+    scene = layout.scene
 
     def barotropic(model):
         return is_fluid(model) and (model in BAROTROPIC or split_model(model)[0] in BAROTROPIC)
@@ -34,26 +34,30 @@ def diffused_particles(lay):
     on = [barotropic(scene.material(p).model) for p in scene.phases]
     if not any(on):
         return None
-    return np.concatenate([np.full(sl.stop - sl.start, o, bool) for o, sl in zip(on, lay.slices)])
+    return np.concatenate([np.full(sl.stop - sl.start, o, bool) for o, sl in zip(on, layout.slices)])
 
 
-def phase_average(lay, st, volume, q):
+def phase_average(layout, stencils, volume, q):
     """The volume-weighted nodal average of q (N,) over the particles of each phase, interpolated
     back to the phase's particles: sum_n S_n(x_p) (sum_q V_q q_q S_nq) / (sum_q V_q S_nq), the sums
     over the particles q of p's phase, in q's units. Exact for a linear q inside a phase; one-sided
     at its boundary nodes (a free surface, an interface). The linear fit of E15 in its place,
     exact there too, made the dam break non-finite within 300 steps: at nearly empty surface
     nodes the fit extrapolates."""
-    g = lay.particle_sum(
+    g = layout.particle_sum(
         scatter(
-            st, lay.phase, st.w[..., None] * jnp.stack([volume * q, volume], -1)[:, None, :], lay.n_phases, lay.n_nodes
+            stencils,
+            layout.phase,
+            stencils.w[..., None] * jnp.stack([volume * q, volume], -1)[:, None, :],
+            layout.n_phases,
+            layout.n_nodes,
         )
     )
-    q_n = fields.safe_div(g[..., :1], g[..., 1:], 1e-30 * lay.particle_max(volume))
-    return interpolate(st, lay.phase, q_n)[:, 0]
+    q_n = fields.safe_div(g[..., :1], g[..., 1:], 1e-30 * layout.particle_max(volume))
+    return interpolate(stencils, layout.phase, q_n)[:, 0]
 
 
-def density_diffusion_rate(lay, params, st, state, fluid):
+def density_diffusion_rate(layout, params, stencils, state, fluid):
     """(N,) 1/s: the volume rate that relaxes each fluid particle's specific volume u = V / m to
     its phase's local average u-bar (`phase_average`) at the rate delta c / h, c the particle's sound
     speed and delta the scene's `density_diffusion`: (delta c / h) (u-bar / u - 1); 0 for the other particles. The density diffusion of
@@ -64,7 +68,7 @@ def density_diffusion_rate(lay, params, st, state, fluid):
     damps them at the grid scale within a few h / c and leaves a linear field of u (a fluid at rest
     under gravity) unchanged away from the phase's boundaries."""
     u = state.volume / state.mass
-    u_bar = phase_average(lay, st, state.volume, u)
-    c = bulk_modulus_and_wave_speed(lay, params, state)[1]
-    rate = lay.scene.density_diffusion * c / lay.scene.grid.h * (u_bar / u - 1)
+    u_bar = phase_average(layout, stencils, state.volume, u)
+    c = bulk_modulus_and_wave_speed(layout, params, state)[1]
+    rate = layout.scene.density_diffusion * c / layout.scene.grid.h * (u_bar / u - 1)
     return jnp.where(jnp.asarray(fluid), rate, 0.0)

@@ -59,11 +59,11 @@ def solve_rows(A, b):
     return x, det
 
 
-def lsq_moments(st, pressure, volume):
+def lsq_moments(stencils, pressure, volume):
     """Per-particle, per-stencil-node contributions (N, S, C) for the linear fit (E15):
     w, w r, w r r^T, w p, w p r with w = V_p S_np and r = x_p - x_n. C = 2 + 2 d + d^2."""
-    w = (volume[:, None] * st.w)[..., None]  # (N, S, 1)
-    r = -st.dpos  # (N, S, d)
+    w = (volume[:, None] * stencils.w)[..., None]  # (N, S, 1)
+    r = -stencils.dpos  # (N, S, d)
     d = r.shape[-1]
     rr = (r[..., :, None] * r[..., None, :]).reshape(r.shape[:-1] + (d * d,))
     p = pressure[:, None, None]

@@ -9,6 +9,12 @@ Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.nodal import NodalSums
+
 from dataclasses import replace
 
 import jax
@@ -24,103 +30,128 @@ from jaxmpm.stages.multifield import ambient_pressure_by_phase, exchange_force
 from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, grid_shape, particle_radius, scatter_named
 
 
-def grid_to_particle(lay, params, state, st, beta, g, grid: GridUpdate, dt, m_min):
+def grid_to_particle(
+    layout: Layout,
+    params: Params,
+    state: State,
+    stencils: Stencil,
+    beta: jax.Array | None,
+    sums: NodalSums,
+    grid: GridUpdate,
+    dt: jax.Array,
+    m_min: jax.Array,
+) -> tuple[State, jax.Array, jax.Array | None]:
     """Stage 4: (moved, L, p_amb): the State with the particles' new x, v (and energy, with
     drag_heating), the velocity gradient L (N, d, d) (3 x 3 axisymmetric) that drives their
     constitutive update, and the closure's ambient pressure at the particles (N,) Pa (E8) or None.
-    st, beta, g: the step's stencil, DDMP blend and particle-to-grid scatter (stages 1, 2)."""
-    scene = lay.scene
-    d = lay.dim
-    v_n, a_n, dg, p_amb_n, volume_rate, impulses = grid
-    p_amb = None if p_amb_n is None else interpolate(st, lay.field, p_amb_n[..., None])[:, 0]
-    if scene.has_closure and lay.n_phases > 1 and not lay.ambient_by_field:
-        p_amb = ambient_pressure_by_phase(lay, params, st, state)  # (E8)
+    stencils, beta, g: the step's stencil, DDMP blend and particle-to-grid scatter (stages 1, 2)."""
+    scene = layout.scene
+    d = layout.dim
+    v_n, a_n, operators, p_amb_n, volume_rate, impulses = grid
+    p_amb = None if p_amb_n is None else interpolate(stencils, layout.field, p_amb_n[..., None])[:, 0]
+    if scene.has_closure and layout.n_phases > 1 and not layout.ambient_by_field:
+        p_amb = ambient_pressure_by_phase(layout, params, stencils, state)  # (E8)
     if scene.transfer == "musl":
-        v = state.v + dt * interpolate(st, lay.field, a_n)
-        vol_n = g["vol"][..., 0] if "vol" in g else None
+        v = state.v + dt * interpolate(stencils, layout.field, a_n)
+        vol_n = sums.volume[..., 0] if sums.volume is not None else None
         with jax.named_scope("remap"):
-            v_r = remap_exchange(lay, params, st, state, v, vol_n, dt, m_min, raw=impulses is not None)
+            v_r = remap_exchange(layout, params, stencils, state, v, vol_n, dt, m_min, raw=impulses is not None)
         energy = state.energy
         if impulses is not None:  # the drag's work as heat (drag_heating), by mass: sum_p m_p de_p = sum_n Q_nk
             v_r, v_raw = v_r
-            m = g["m"][..., 0]
+            m = sums.mass[..., 0]
             heat = fields.drag_heat(impulses, m, v_raw, m_min)
-            energy = energy + interpolate(st, lay.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
-        x = state.x + dt * interpolate(st, lay.field, v_r)
+            energy = energy + interpolate(stencils, layout.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
+        x = state.x + dt * interpolate(stencils, layout.field, v_r)
         with jax.named_scope("velocity_gradient"):
             L = particle_velocity_gradient(
-                lay, st, v_r, vol_n if beta is not None else None, dg, radius=particle_radius(lay, state)
+                layout,
+                stencils,
+                v_r,
+                vol_n if beta is not None else None,
+                operators,
+                radius=particle_radius(layout, state),
             )
             if scene.continuity_form == "transport":  # (E7)
                 extra = volume_rate(v_r)
                 L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-            fluid = diffused_particles(lay)
+            fluid = diffused_particles(layout)
             if fluid is not None:
-                rate = density_diffusion_rate(lay, params, st, state, fluid)
+                rate = density_diffusion_rate(layout, params, stencils, state, fluid)
                 L = L + (rate / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
         moved = replace(state, x=x, v=v, energy=energy)
     else:
         half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
-        va = interpolate(st, lay.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
+        va = interpolate(stencils, layout.field, jnp.concatenate([a_n, v_n + half * dt * a_n], -1))
         moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
         with jax.named_scope("velocity_gradient"):
-            L = velocity_gradient(lay, params, stencil(scene, moved.x), moved, dt, m_min)
+            L = velocity_gradient(layout, params, stencil(scene, moved.x), moved, dt, m_min)
     return moved, L, p_amb
 
 
-def _with_hoop(lay, st, L, v, radius):
+def _with_hoop(layout, stencils, L, v, radius):
     """Axisymmetric: L (N, 2, 2) of (r, z) -> (N, 3, 3) with L_thth = v_r(x_p) / r_p."""
     if radius is None:
         return L
-    v_r = interpolate(st, lay.field, v[..., :1])[:, 0]
+    v_r = interpolate(stencils, layout.field, v[..., :1])[:, 0]
     L3 = jnp.zeros(L.shape[:-2] + (3, 3), L.dtype).at[:, :2, :2].set(L)
     return L3.at[:, 2, 2].set(v_r / radius)
 
 
-def particle_velocity_gradient(lay, st, v, nodal_volume=None, dg=None, volume=None, radius=None):
+def particle_velocity_gradient(layout, stencils, v, nodal_volume=None, operators=None, volume=None, radius=None):
     """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
-    (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators dg or the particle
+    (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators operators or the particle
     volumes (N,) to build them) the blend (E12):
     L_p = beta_p sum_i v_i (x) grad S_i(x_p) + (1 - beta_p) sum_j S_j(x_p) L-bar_j. Returns (N, d, d)."""
-    d = lay.dim
-    L = stencil_outer(gather(st, lay.field, v), st.dw)
+    d = layout.dim
+    L = stencil_outer(gather(stencils, layout.field, v), stencils.dw)
     if nodal_volume is None:
-        return _with_hoop(lay, st, L, v, radius)
-    beta = ddmp_beta(st.xi)
-    dg = ddmp_operators(lay, st, nodal_volume, v.dtype, volume) if dg is None else dg
-    Lbar = ddmp.nodal_velocity_gradient(lay.scene.grid, dg, v.reshape(grid_shape(lay) + (d,)))
-    Lbar = interpolate(st, lay.field, Lbar.reshape(lay.n_fields, lay.n_nodes, d * d)).reshape(-1, d, d)
-    return _with_hoop(lay, st, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)  # (E12)
+        return _with_hoop(layout, stencils, L, v, radius)
+    beta = ddmp_beta(stencils.xi)
+    operators = ddmp_operators(layout, stencils, nodal_volume, v.dtype, volume) if operators is None else operators
+    Lbar = ddmp.nodal_velocity_gradient(layout.scene.grid, operators, v.reshape(grid_shape(layout) + (d,)))
+    Lbar = interpolate(stencils, layout.field, Lbar.reshape(layout.n_fields, layout.n_nodes, d * d)).reshape(-1, d, d)
+    return _with_hoop(layout, stencils, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)  # (E12)
 
 
-def velocity_gradient(lay, params, st, state, dt, m_min):
+def velocity_gradient(layout, params, stencils, state, dt, m_min):
     """Stage 4b of the 'seed' variants: remap at the new positions (with E14 between coupled
     fields), then L_p (N, d, d) there."""
-    ddmp_on = lay.scene.shape == "ddmp"
+    ddmp_on = layout.scene.shape == "ddmp"
     vol_n = None
-    if ddmp_on or lay.scene.has_exchange:
-        vol_n = lay.particle_sum(
-            scatter(st, lay.field, st.w[..., None] * state.volume[:, None, None], lay.n_fields, lay.n_nodes)
+    if ddmp_on or layout.scene.has_exchange:
+        vol_n = layout.particle_sum(
+            scatter(
+                stencils,
+                layout.field,
+                stencils.w[..., None] * state.volume[:, None, None],
+                layout.n_fields,
+                layout.n_nodes,
+            )
         )[..., 0]
-    v = remap_exchange(lay, params, st, state, state.v, vol_n, dt, m_min)
+    v = remap_exchange(layout, params, stencils, state, state.v, vol_n, dt, m_min)
     return particle_velocity_gradient(
-        lay, st, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(lay, state)
+        layout, stencils, v, vol_n if ddmp_on else None, volume=state.volume, radius=particle_radius(layout, state)
     )
 
 
-def remap_exchange(lay, params, st, state, v_p, vol_n, dt, m_min, raw=False):
-    """Remap particle velocities v_p onto the nodes of stencil st: v_n = sum m_p v_p S_np / m_n,
+def remap_exchange(layout, params, stencils, state, v_p, vol_n, dt, m_min, raw=False):
+    """Remap particle velocities v_p onto the nodes of stencil stencils: v_n = sum m_p v_p S_np / m_n,
     walls applied; with several coupled fields the implicit exchange applied again (E14).
     vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d); raw=True:
     (that, the remapped velocity before E14)."""
-    w = st.w[..., None]
-    g = scatter_named(lay, st, {"m": w * state.mass[:, None, None], "mv": w * (state.mass[:, None] * v_p)[:, None, :]})
-    v = v_raw = apply_walls(lay, fields.safe_div(g["mv"], g["m"], m_min))
-    if lay.scene.has_exchange:  # (E14)
-        F = exchange_force(lay, params, g["m"][..., 0], vol_n, v, dt, m_min)
+    w = stencils.w[..., None]
+    sums = scatter_named(
+        layout,
+        stencils,
+        {"mass": w * state.mass[:, None, None], "momentum": w * (state.mass[:, None] * v_p)[:, None, :]},
+    )
+    v = v_raw = apply_walls(layout, fields.safe_div(sums.momentum, sums.mass, m_min))
+    if layout.scene.has_exchange:  # (E14)
+        F = exchange_force(layout, params, sums.mass[..., 0], vol_n, v, dt, m_min)
         # under lax.cond(dt > 0), like the exchange (at dt = 0 the update adds nothing): XLA keeps
         # the updated v as one array where it fused its masks and divisions into DDMP's velocity
         # gradient (E12) and repeated them for each of a cell's 16 outputs (the debris cloud's E12
         # 0.40 -> 0.21 ms per step; its forward step and gradient 8-10% faster, interleaved)
-        v = jax.lax.cond(dt > 0, lambda: apply_walls(lay, v + dt * fields.safe_div(F, g["m"], m_min)), lambda: v)
+        v = jax.lax.cond(dt > 0, lambda: apply_walls(layout, v + dt * fields.safe_div(F, sums.mass, m_min)), lambda: v)
     return (v, v_raw) if raw else v

@@ -4,6 +4,8 @@ once per step function by `Layout.of(scene)`; and the walls' velocity mask it ho
 from __future__ import annotations
 
 import functools
+from typing import Any
+
 from dataclasses import dataclass
 
 import jax
@@ -65,12 +67,12 @@ class Layout:
             phase=phase,
         )
 
-    def particle_sum(self, x):
+    def particle_sum(self, x: jax.Array) -> jax.Array:
         """A sum over particles completed across the devices: x is a scatter's nodal result
         (K, n_nodes, C) or (K, n_cells) from this device's particles; the same shape back."""
         return x if self.axis_name is None else jax.lax.psum(x, self.axis_name)
 
-    def particle_max(self, x):
+    def particle_max(self, x: jax.Array) -> jax.Array:
         """The maximum over particles of x (N,) or (N, ...), across the devices too: a scalar in
         x's units (here m/s for the CFL speeds, kg for the mass floor)."""
         m = jnp.max(x)
@@ -89,13 +91,13 @@ def boundary_mask(scene) -> np.ndarray | None:
     """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1;
     None where no component is held ('separating' faces hold no component both ways:
     `separating_sides`)."""
-    g, b = scene.grid, scene.boundary
-    on_axis = scene.axisymmetric and g.origin[0] == 0.0
-    if all(b.kind(k, s) in ("free", "separating") for k in range(g.dim) for s in ("lo", "hi")) and not on_axis:
+    grid, b = scene.grid, scene.boundary
+    on_axis = scene.axisymmetric and grid.origin[0] == 0.0
+    if all(b.kind(k, s) in ("free", "separating") for k in range(grid.dim) for s in ("lo", "hi")) and not on_axis:
         return None
-    idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
-    mask = np.ones((g.n_nodes, g.dim))
-    for k in range(g.dim):
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in grid.nodes], indexing="ij"), -1).reshape(-1, grid.dim)
+    mask = np.ones((grid.n_nodes, grid.dim))
+    for k in range(grid.dim):
         for side in ("lo", "hi"):
             kind = b.kind(k, side)
             if kind in ("free", "separating"):
@@ -122,19 +124,19 @@ def separating_sides(scene) -> tuple[np.ndarray, np.ndarray] | None:
     """(lo, hi), each (n_nodes, d) bool: the velocity components a 'separating' face holds from
     below (lo: the component may not be negative) and from above (hi: not positive); None where
     no face is 'separating'."""
-    g, b = scene.grid, scene.boundary
-    if all(b.kind(k, s) != "separating" for k in range(g.dim) for s in ("lo", "hi")):
+    grid, b = scene.grid, scene.boundary
+    if all(b.kind(k, s) != "separating" for k in range(grid.dim) for s in ("lo", "hi")):
         return None
-    idx = np.stack(np.meshgrid(*[np.arange(n) for n in g.nodes], indexing="ij"), -1).reshape(-1, g.dim)
-    held = {s: np.zeros((g.n_nodes, g.dim), bool) for s in ("lo", "hi")}
-    for k in range(g.dim):
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in grid.nodes], indexing="ij"), -1).reshape(-1, grid.dim)
+    held = {s: np.zeros((grid.n_nodes, grid.dim), bool) for s in ("lo", "hi")}
+    for k in range(grid.dim):
         for side in ("lo", "hi"):
             if b.kind(k, side) == "separating":
                 held[side][wall_nodes(scene, idx, k, side), k] = True
     return held["lo"], held["hi"]
 
 
-def apply_walls(layout, v):
+def apply_walls(layout: Layout, v: jax.Array) -> jax.Array:
     """Nodal velocities v (K, n_nodes, d) with the walls' components zeroed (`Layout.bc_mask`)
     and, at 'separating' faces, the normal component into the wall zeroed; v itself where the
     scene has no walls. Also for accelerations where no face is 'separating' (else
@@ -147,7 +149,7 @@ def apply_walls(layout, v):
     return jnp.where(lo, jnp.maximum(v, 0), jnp.where(hi, jnp.minimum(v, 0), v))
 
 
-def wall_acceleration(layout, v, a, dt):
+def wall_acceleration(layout: Layout, v: jax.Array, a: jax.Array, dt: jax.Array) -> jax.Array:
     """The nodal acceleration a (K, n_nodes, d) m/s^2 the walls allow to nodes of velocity v
     (walls applied, m/s) over the step dt (s): `apply_walls` of a; at 'separating' faces, the
     acceleration that takes v to `apply_walls` of v + dt a (a node leaving the wall keeps its
@@ -158,3 +160,18 @@ def wall_acceleration(layout, v, a, dt):
     a = a if layout.bc_mask is None else a * jnp.asarray(layout.bc_mask, a.dtype)
     held = (apply_walls(layout, v + dt * a) - v) / jnp.where(dt > 0, dt, 1)
     return jnp.where(jnp.asarray(sides[0] | sides[1]) & (dt > 0), held, a)
+
+
+# ------------------------------------------------------------------------------- stage names
+# Each stage of the step runs under a jax.named_scope of its name in STAGES, and the parts of the
+# grid update and of the grid-to-particle stage under those in STAGE_PARTS (where the scene has
+# them): XLA's operations carry the names in their metadata, so that a profile can put its
+# kernels' times on the stages (benchmarks/profile_step.py). The names change no computation.
+STAGES = ("1_shape_functions", "2_particle_to_grid", "3_grid_update", "4_grid_to_particle", "5_constitutive")
+STAGE_PARTS = ("ddmp_operators", "stress_force", "interface_force", "exchange", "remap", "velocity_gradient")
+
+
+def mass_floor(layout: Layout, state: Any) -> jax.Array:
+    """The nodal mass below which a node counts as empty, kg: eps^2 times the largest particle mass."""
+    eps = jnp.finfo(state.mass.dtype).eps
+    return layout.particle_max(state.mass) * eps**2

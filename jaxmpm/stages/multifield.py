@@ -3,7 +3,7 @@ and compressibilities, the common pressure (E6) from nodal phase pressures (the 
 V_p S_np averages of the continuity form), the interface forces (E13), the continuity form's
 volume rate (E7, the transpose of E13) and the implicit exchange (E3).
 
-Shapes: N particles, K velocity fields, n_nodes nodes per field, d dimensions; `lay` is a
+Shapes: N particles, K velocity fields, n_nodes nodes per field, d dimensions; `layout` is a
 jaxmpm.stages.layout.Layout. SI units.
 """
 
@@ -21,13 +21,13 @@ from jaxmpm.stages.nodal import node_volume, particle_radius, pressure_parts, sc
 from jaxmpm.numerics.transfer import interpolate
 
 
-def phase_pressure_and_compressibility(lay, params, state):
+def phase_pressure_and_compressibility(layout, params, state):
     """(N,) particle pressure the grid sees (Pa; with the closure, `closure.grid_pressure`) and
     compressibility kappa = 1 / K (1/Pa)."""
-    return grid_pressure(lay, params, state), 1.0 / bulk_modulus_and_wave_speed(lay, params, state)[0]
+    return grid_pressure(layout, params, state), 1.0 / bulk_modulus_and_wave_speed(layout, params, state)[0]
 
 
-def interface_force(lay, params, st, beta, state, g, dg, m_min):
+def interface_force(layout, params, stencils, beta, state, sums, operators, m_min):
     """(E13) interface forces between fields from the common pressure (E6), (K, n_nodes, d):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
     minus the mass-fraction share of the net, so they sum to zero at each node. Returns
@@ -39,24 +39,26 @@ def interface_force(lay, params, st, beta, state, g, dg, m_min):
     pressures -> I map (`jax.vjp`), so the map's forward pass (a scatter of the pressures, the
     common pressure, a gather, a scatter and two DDMP contractions) runs once, not twice; the
     phase pressures' moments are scattered inside it, not with the other nodal parts (E15's fit,
-    continuity 'off', takes them from g['pm'])."""
+    continuity 'off', takes them from g.pressure_moments)."""
     dtype = state.mass.dtype
-    if lay.scene.continuity_form == "transport":
-        power_density, p_part = _coupling_map(lay, params, st, beta, state, g, dg, m_min)
+    if layout.scene.continuity_form == "transport":
+        power_density, p_part = _coupling_map(layout, params, stencils, beta, state, sums, operators, m_min)
         I, transpose, mom = jax.vjp(power_density, p_part, has_aux=True)
 
         def volume_rate(v):
             return fields.safe_div(transpose(v)[0], state.volume, 0.0)
     else:
-        mom, volume_rate = g["pm"], None
-        I = interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, nodal_common_pressure(lay, g, mom, dtype))
+        mom, volume_rate = sums.pressure_moments, None
+        I = interface_force_of_pressure(
+            layout, stencils, beta, state, sums, operators, m_min, nodal_common_pressure(layout, sums, mom, dtype)
+        )
     p_amb = None
-    if lay.scene.has_closure and lay.ambient_by_field:
-        p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, mom, dtype))
+    if layout.scene.has_closure and layout.ambient_by_field:
+        p_amb = fields.ambient_pressure(*_pressure_inputs(layout, sums, mom, dtype))
     return I, p_amb, volume_rate
 
 
-def ambient_pressure_by_phase(lay, params, st, state):
+def ambient_pressure_by_phase(layout, params, stencils, state):
     """(E8) the closure's ambient pressure at each particle, (N,) Pa: the common pressure (E6) of
     the OTHER phases at the particle's nodes, interpolated; 0 where no other phase is present.
     Formed from one scatter onto a grid per phase of the volume, the compressibility volume and
@@ -65,49 +67,55 @@ def ambient_pressure_by_phase(lay, params, st, state):
     depend on how the phases are grouped into velocity fields: phases sharing a field are each
     other's ambient as phases in fields of their own are. Needs >= 2 phases."""
     dtype = state.mass.dtype
-    p, kappa = phase_pressure_and_compressibility(lay, params, state)
+    p, kappa = phase_pressure_and_compressibility(layout, params, state)
     V = state.volume
-    w = st.w[..., None]
-    g = scatter_named(
-        lay,
-        st,
-        {"vol": w * V[:, None, None], "kvol": w * (V * kappa)[:, None, None], "pm": pressure_moments(lay, st, p, V)},
+    w = stencils.w[..., None]
+    sums = scatter_named(
+        layout,
+        stencils,
+        {
+            "volume": w * V[:, None, None],
+            "compressible_volume": w * (V * kappa)[:, None, None],
+            "pressure_moments": pressure_moments(layout, stencils, p, V),
+        },
         by_phase=True,
     )
-    p_amb = fields.ambient_pressure(*_pressure_inputs(lay, g, g["pm"], dtype))  # (n_phases, n_nodes)
-    return interpolate(st, lay.phase, p_amb[..., None])[:, 0]
+    p_amb = fields.ambient_pressure(
+        *_pressure_inputs(layout, sums, sums.pressure_moments, dtype)
+    )  # (n_phases, n_nodes)
+    return interpolate(stencils, layout.phase, p_amb[..., None])[:, 0]
 
 
-def pressure_moments(lay, st, pressure, volume):
+def pressure_moments(layout, stencils, pressure, volume):
     """Per-particle, per-stencil-node moments (N, S, C) from which the nodal phase pressures are
     formed: those of the linear fit (E15), or with the continuity form (E7) w and w p of the
     V_p S_np-weighted average (w = V_p S_np)."""
-    if lay.scene.continuity_form == "transport":
-        w = volume[:, None] * st.w
+    if layout.scene.continuity_form == "transport":
+        w = volume[:, None] * stencils.w
         return jnp.stack([w, w * pressure[:, None]], -1)
-    return fields.lsq_moments(st, pressure, volume)
+    return fields.lsq_moments(stencils, pressure, volume)
 
 
-def _pressure_inputs(lay, g, moments, dtype):
+def _pressure_inputs(layout, sums, moments, dtype):
     """Nodal volume fractions, compressibilities and phase pressures, each (K, n_nodes), from the
     scattered parts g and the scattered `pressure_moments` (K, n_nodes, C)."""
-    vol = g["vol"][..., 0]
-    theta = vol / node_volume(lay, dtype)[None]
-    kappa = fields.safe_div(g["kvol"][..., 0], vol, 0.0)
-    if lay.scene.continuity_form == "transport":
+    vol = sums.volume[..., 0]
+    theta = vol / node_volume(layout, dtype)[None]
+    kappa = fields.safe_div(sums.compressible_volume[..., 0], vol, 0.0)
+    if layout.scene.continuity_form == "transport":
         w = moments[..., 0]
         return theta, kappa, fields.safe_div(moments[..., 1], w, 1e-12 * jnp.max(w))
-    return theta, kappa, fields.lsq_nodal_pressure(moments, lay.dim, lay.scene.grid.h)
+    return theta, kappa, fields.lsq_nodal_pressure(moments, layout.dim, layout.scene.grid.h)
 
 
-def nodal_common_pressure(lay, g, moments, dtype):
+def nodal_common_pressure(layout, sums, moments, dtype):
     """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
     continuity form (E7) its compressive part, max(p_n, 0) with a smooth onset (`contact_onset`)."""
-    theta, kappa, P = _pressure_inputs(lay, g, moments, dtype)
-    w = _shared_weight(lay, dtype)
+    theta, kappa, P = _pressure_inputs(layout, sums, moments, dtype)
+    w = _shared_weight(layout, dtype)
     shared = theta if w is None else theta * w
     p = fields.common_pressure(shared, kappa, P)
-    if lay.scene.continuity_form == "transport":  # fields in contact push, they do not pull (E7)
+    if layout.scene.continuity_form == "transport":  # fields in contact push, they do not pull (E7)
         p = contact_onset(p, onset_pressure(shared, kappa))
     return p
 
@@ -145,29 +153,37 @@ def contact_onset(p, p_on):
     return p * (u * u * (3 - 2 * u))
 
 
-def _shared_weight(lay, dtype):
+def _shared_weight(layout, dtype):
     """(K, 1) 1 for the fields that share the common pressure, 0 for the others; None when all do.
     Fields outside scene.pressure_fields feel the drag only: no part in p_n, in I or in (E7)."""
-    shared = np.isin(np.arange(lay.n_fields), lay.scene.pressure_fields)  # static (K,)
+    shared = np.isin(np.arange(layout.n_fields), layout.scene.pressure_fields)  # static (K,)
     return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
 
 
-def interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n):
+def interface_force_of_pressure(layout, stencils, beta, state, sums, operators, m_min, p_n):
     """(E13) the interface forces (K, n_nodes, d) of a nodal common pressure p_n (n_nodes,): linear
     in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
     dtype = state.mass.dtype
-    w = _shared_weight(lay, dtype)
-    grid = lay.scene.grid
-    p_p = interpolate(st, None, p_n[None, :, None])[:, 0]
-    g_p = scatter_named(lay, st, pressure_parts(st, state.volume, beta, p_p, particle_radius(lay, state)))
-    p_hat = g_p["shp"].reshape((lay.n_fields,) + grid.nodes) if "shp" in g_p else None
-    I = g_p["f"] + ddmp.nodal_interface_force(grid, dg, p_hat, p_n.reshape(grid.nodes)).reshape(g_p["f"].shape)
+    w = _shared_weight(layout, dtype)
+    grid = layout.scene.grid
+    p_p = interpolate(stencils, None, p_n[None, :, None])[:, 0]
+    pressure_sums = scatter_named(
+        layout, stencils, pressure_parts(stencils, state.volume, beta, p_p, particle_radius(layout, state))
+    )
+    p_hat = (
+        pressure_sums.pressure_share.reshape((layout.n_fields,) + grid.nodes)
+        if pressure_sums.pressure_share is not None
+        else None
+    )
+    I = pressure_sums.force + ddmp.nodal_interface_force(grid, operators, p_hat, p_n.reshape(grid.nodes)).reshape(
+        pressure_sums.force.shape
+    )
     if w is None:
-        return fields.share_interface_force(I, g["m"][..., 0], m_min)
-    return fields.share_interface_force(I * w[..., None], g["m"][..., 0] * w, m_min) * w[..., None]
+        return fields.share_interface_force(I, sums.mass[..., 0], m_min)
+    return fields.share_interface_force(I * w[..., None], sums.mass[..., 0] * w, m_min) * w[..., None]
 
 
-def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
+def continuity_volume_rate(layout, params, stencils, beta, state, sums, operators, m_min, v):
     """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
     divergence of its own field, so that the work of the interface forces is stored, not created.
 
@@ -201,12 +217,12 @@ def continuity_volume_rate(lay, params, st, beta, state, g, dg, m_min, v):
     the plain averages here, not the fit (E15): the fit's transpose has large weights of either
     sign at one-sided nodes (a tungsten rod entering steel went non-finite in 1 us with it), the
     average's are positive; with the continuity form the average keeps the settling column at rest."""
-    power_density, p_part = _coupling_map(lay, params, st, beta, state, g, dg, m_min)
+    power_density, p_part = _coupling_map(layout, params, stencils, beta, state, sums, operators, m_min)
     _, transpose, _ = jax.vjp(power_density, p_part, has_aux=True)
     return fields.safe_div(transpose(v)[0], state.volume, 0.0)
 
 
-def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
+def _coupling_map(layout, params, stencils, beta, state, sums, operators, m_min):
     """The continuity form's map from the particle pressures (N,) Pa -> the V_p S_mp averaged phase
     pressures' moments (scattered) -> p_m (E6, with the contact onset) -> interface forces (E13)
     (K, n_nodes, d) N, with the moments as an auxiliary output; and the particles' pressures (N,)
@@ -214,14 +230,16 @@ def _coupling_map(lay, params, st, beta, state, g, dg, m_min):
     dtype = state.mass.dtype
 
     def power_density(p_part):
-        mom = scatter_named(lay, st, {"pm": pressure_moments(lay, st, p_part, state.volume)})["pm"]
-        p_n = nodal_common_pressure(lay, g, mom, dtype)
-        return interface_force_of_pressure(lay, st, beta, state, g, dg, m_min, p_n), mom
+        mom = scatter_named(
+            layout, stencils, {"pressure_moments": pressure_moments(layout, stencils, p_part, state.volume)}
+        ).pressure_moments
+        p_n = nodal_common_pressure(layout, sums, mom, dtype)
+        return interface_force_of_pressure(layout, stencils, beta, state, sums, operators, m_min, p_n), mom
 
-    return power_density, phase_pressure_and_compressibility(lay, params, state)[0]
+    return power_density, phase_pressure_and_compressibility(layout, params, state)[0]
 
 
-def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
+def exchange_force(layout, params, m, vol, v, dt, m_min, impulses=False):
     """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
     and velocities v (K, n_nodes, d), over a time step dt (s).
 
@@ -239,8 +257,10 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
 
     impulses=True: returns (F, J), J (P, n_nodes, d) in N s the momentum each pair of fields
     exchanged (`fields.exchange`; zero where no solve ran)."""
-    scene = lay.scene
-    V_n = node_volume(lay, m.dtype)
+    # longer than 60 lines on purpose: the exchange (E3) of one step: the drag rows, the pairs' solve and the
+    # optional heating share its nodal arrays
+    scene = layout.scene
+    V_n = node_volume(layout, m.dtype)
     n_pairs = m.shape[0] * (m.shape[0] - 1) // 2
 
     def solve(m, vol, v, V_n):
@@ -250,7 +270,7 @@ def exchange_force(lay, params, m, vol, v, dt, m_min, impulses=False):
             theta,
             rho,
             v,
-            params.drag_coefficient if scene.drag is not None else None,
+            params.drag if scene.drag is not None else None,
             params.drag_length,
             params.linear_drag if scene.linear_drag is not None else None,
         )

@@ -22,38 +22,38 @@ def fails(model_name) -> bool:
     return bool(split_model(model_name)[2])
 
 
-def pressure(lay, state):
+def pressure(layout, state):
     """(N,) pressure of every particle, Pa: state.pressure for the hydrocode models (EOS plus
     artificial viscosity), -tr(stress) / d for the total-stress models (so a user who edits the
     stress of such a State needs not edit the pressure)."""
-    scene = lay.scene
+    scene = layout.scene
     if all(model_of(scene.material(p).model).hydro for p in scene.phases):
         return state.pressure
     tr = -jnp.trace(state.stress, axis1=1, axis2=2) / state.stress.shape[-1]
     return jnp.concatenate(
         [
             state.pressure[sl] if model_of(scene.material(p).model).hydro else tr[sl]
-            for p, sl in zip(scene.phases, lay.slices)
+            for p, sl in zip(scene.phases, layout.slices)
         ]
     )
 
 
-def model_groups(lay):
+def model_groups(layout):
     """The phases grouped by model kind, in order of first appearance: a tuple of (model name,
     phase indices, particles) with particles a slice where the group's particles are contiguous
     in particle order, else a static index array. Static (from the scene)."""
-    scene = lay.scene
+    scene = layout.scene
     names = [scene.material(p).model for p in scene.phases]
     groups = []
     for name in dict.fromkeys(names):
         members = tuple(i for i, n in enumerate(names) if n == name)
-        idx = np.concatenate([np.arange(lay.slices[i].start, lay.slices[i].stop) for i in members])
+        idx = np.concatenate([np.arange(layout.slices[i].start, layout.slices[i].stop) for i in members])
         contiguous = idx.size == 0 or np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size))
         groups.append((name, members, slice(int(idx[0]), int(idx[0]) + idx.size) if contiguous and idx.size else idx))
     return tuple(groups)
 
 
-def per_model(lay, params, fn, *arrays):
+def per_model(layout, params, fn, *arrays):
     """fn(model, constants, *arrays) -> pytree of (n, ...) arrays, evaluated once per model kind
     on that kind's particles and assembled in particle order. arrays: (N, ...) per-particle
     inputs (or None, passed through). fn is written for scalar constants: for a kind shared by
@@ -63,9 +63,9 @@ def per_model(lay, params, fn, *arrays):
     Why: on the CPU the per-particle updates are dozens of small kernels each, and their cost is
     mostly per kernel: two phases of one kind (a projectile and its target of the same metal, in
     separate velocity fields) ran every kernel twice on half the particles."""
-    scene = lay.scene
+    scene = layout.scene
     outs, order = [], []
-    for name, members, part in model_groups(lay):
+    for name, members, part in model_groups(layout):
         if (part.stop - part.start if isinstance(part, slice) else part.size) == 0:
             continue
         model = model_of(name)
@@ -73,7 +73,7 @@ def per_model(lay, params, fn, *arrays):
         if len(members) == 1:
             outs.append(fn(model, params.phases[scene.phases[members[0]].name], *args))
         else:
-            sizes = [lay.slices[i].stop - lay.slices[i].start for i in members]
+            sizes = [layout.slices[i].stop - layout.slices[i].start for i in members]
             consts = [params.phases[scene.phases[i].name] for i in members]
             c = {
                 k: jnp.concatenate([jnp.broadcast_to(jnp.asarray(ci[k]), (n,)) for ci, n in zip(consts, sizes)])
@@ -98,7 +98,7 @@ def per_model(lay, params, fn, *arrays):
     return jax.tree.map(lambda a: a[inverse], joined)
 
 
-def bulk_modulus_and_wave_speed(lay, params, state):
+def bulk_modulus_and_wave_speed(layout, params, state):
     """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state.
 
     Failed material (damage D, 1 = failed) carries no shear, so its longitudinal speed loses the
@@ -106,9 +106,9 @@ def bulk_modulus_and_wave_speed(lay, params, state):
     c_model^2 = K / rho + 4 G / (3 rho). Without it a failed particle expanded to 1e-4 of its
     density kept 4 G / (3 rho) ~ (500 km/s)^2 and the CFL step of the debris cloud collapsed."""
     rho = state.mass / state.volume
-    dim = lay.scene.material_dim
+    dim = layout.scene.material_dim
     K, cw = per_model(
-        lay,
+        layout,
         params,
         lambda m, c, r, e: (
             m.bulk_modulus(c, r, e, dim) * jnp.ones_like(r),
@@ -119,8 +119,8 @@ def bulk_modulus_and_wave_speed(lay, params, state):
     )
     hydro = np.concatenate(
         [
-            np.full(sl.stop - sl.start, model_of(lay.scene.material(p).model).hydro, bool)
-            for p, sl in zip(lay.scene.phases, lay.slices)
+            np.full(sl.stop - sl.start, model_of(layout.scene.material(p).model).hydro, bool)
+            for p, sl in zip(layout.scene.phases, layout.slices)
         ]
     )
     if hydro.any():

@@ -1,0 +1,63 @@
+"""A run's health: whether its particles are finite and inside the grid (traced, each chunk), and
+where a failed state fails (on the host: the field, the phase and the particle)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmpm.model.sampling import usable_region
+from jaxmpm.model.state import phase_slices
+from jaxmpm.numerics.compile import jit
+from jaxmpm.step import cfl_time_step
+
+
+CHECKED_FIELDS = ("x", "v", "stress", "volume", "energy")  # the particle fields a run checks are finite
+
+
+def finite_and_inside(state, lo, hi):
+    """(finite, inside): whether every particle's CHECKED_FIELDS are finite, and every particle lies
+    in the grid's usable region [lo, hi] (`usable_region`); two boolean scalars, traceable."""
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in CHECKED_FIELDS]))
+    return finite, jnp.all((state.x >= lo) & (state.x <= hi))
+
+
+@functools.lru_cache(maxsize=32)
+def health_fn(scene):
+    """Jitted on-device check of a chunk's result: (everything finite and inside the grid, CFL dt).
+    Only these two scalars cross to the host each chunk; arrays do only when a check fails."""
+    _, lo, hi = usable_region(scene)
+
+    @jit
+    def health(params, state):
+        ok, inside = finite_and_inside(state, lo, hi)
+        return ok & inside, cfl_time_step(scene, params, state)
+
+    return health
+
+
+def _phase_of(scene, i):
+    return next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
+
+
+def find_nonfinite(scene, state):
+    """None if every particle value is finite and every particle inside the grid, else a message
+    naming the field, the phase and the particle index."""
+    for name in CHECKED_FIELDS:
+        a = np.asarray(getattr(state, name))
+        bad = ~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            return f"non-finite {name} at t = {float(state.t):.6g} s: phase {_phase_of(scene, i)!r}, particle {i}"
+    _, lo, hi = usable_region(scene)
+    x = np.asarray(state.x)
+    out = np.any((x < lo) | (x > hi), axis=1)
+    if out.any():
+        i = int(np.argmax(out))
+        return (
+            f"particle {i} of phase {_phase_of(scene, i)!r} is outside the grid at t = {float(state.t):.6g} s: "
+            f"x = {x[i].tolist()} m, allowed [{lo.tolist()}, {hi.tolist()}] m (enlarge the grid or add walls)"
+        )
+    return None
