@@ -17,3 +17,6 @@ os.environ.setdefault("JAXMPM_NO_CACHE", "1")
 import jax
 
 jax.config.update("jax_enable_x64", True)
+# every mixing of dtypes in jaxmpm is written out (an astype, or a value of the array's own dtype):
+# "strict" promotion makes an implicit one an error instead of a silent change of precision
+jax.config.update("jax_numpy_dtype_promotion", "strict")

@@ -199,7 +199,7 @@ def window_origin(cell_volume, size):
     whether it holds all the field's occupied cells (True for an empty field)."""
     K, cells = cell_volume.shape[0], cell_volume.shape[1:]
     d = len(cells)
-    occupied = cell_volume > 0
+    occupied = cell_volume > jnp.zeros((), cell_volume.dtype)  # a zero of its own dtype: a bool mask too
     origin, fits = [], jnp.ones((K,), bool)
     for e in range(d):
         occ = jnp.any(occupied, axis=tuple(1 + k for k in range(d) if k != e))  # (K, cells_e)

@@ -21,7 +21,10 @@ def finite_and_inside(state, lo, hi):
     """(finite, inside): whether every particle's CHECKED_FIELDS are finite, and every particle lies
     in the grid's usable region [lo, hi] (`usable_region`); two boolean scalars, traceable."""
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in CHECKED_FIELDS]))
-    return finite, jnp.all((state.x >= lo) & (state.x <= hi))
+    lo, hi = jnp.asarray(lo), jnp.asarray(hi)
+    # compared in the wider of the two dtypes (a float32 state against float64 bounds: in float64)
+    x = state.x.astype(np.promote_types(state.x.dtype, lo.dtype))
+    return finite, jnp.all((x >= lo) & (x <= hi))
 
 
 @functools.lru_cache(maxsize=32)
