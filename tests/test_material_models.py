@@ -98,12 +98,12 @@ def test_johnson_cook_yields_at_A_without_plastic_strain(name):
     """Johnson-Cook's Y = A + B eps_p^n is A at eps_p = 0 (at the reference rate, room temperature):
     a trial stress 3 MPa over A yields. Above eps_p = 1e-12, Y and dY/deps_p are Johnson-Cook's own;
     below it the hardening is a straight line from 0 and dY its slope (central differences)."""
-    from jaxmpm.materials.hydro import EPS_P_RAMP, _flow_stress, radial_return
+    from jaxmpm.materials.strength import EPS_P_RAMP, flow_stress, radial_return
 
     c = {k: jnp.asarray(v) for k, v in library_material(name).constants}
     A, B, n = float(c["A"]), float(c["B"]), float(c["n"])
     eps = jnp.asarray([0.0, 0.25e-12, 0.5e-12, 1e-12, 2e-12, 1e-6, 1e-3, 0.3])
-    Y, dY = _flow_stress("johnson_cook", c, eps, jnp.ones_like(eps), None, 0.0)
+    Y, dY = flow_stress("johnson_cook", c, eps, jnp.ones_like(eps), None, 0.0)
     assert float(Y[0]) == A
     np.testing.assert_allclose(Y[3:], A + B * np.asarray(eps[3:]) ** n, rtol=1e-14)
     np.testing.assert_allclose(dY[4:], B * n * np.asarray(eps[4:]) ** (n - 1), rtol=1e-14)
@@ -111,9 +111,9 @@ def test_johnson_cook_yields_at_A_without_plastic_strain(name):
     for e0 in (0.5e-12, 1e-3):
         h = 1e-3 * e0
         (Yp, _), (Ym, _) = (
-            _flow_stress("johnson_cook", c, jnp.asarray([e0 + s]), jnp.ones(1), None, 0.0) for s in (h, -h)
+            flow_stress("johnson_cook", c, jnp.asarray([e0 + s]), jnp.ones(1), None, 0.0) for s in (h, -h)
         )
-        d = _flow_stress("johnson_cook", c, jnp.asarray([e0]), jnp.ones(1), None, 0.0)[1]
+        d = flow_stress("johnson_cook", c, jnp.asarray([e0]), jnp.ones(1), None, 0.0)[1]
         np.testing.assert_allclose(d, (Yp - Ym) / (2 * h), rtol=1e-5)
     assert EPS_P_RAMP == 1e-12
     s_tr = jnp.zeros((1, 3, 3)).at[0, 0, 1].set((A + 3e6) / np.sqrt(3)).at[0, 1, 0].set((A + 3e6) / np.sqrt(3))
@@ -131,7 +131,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     constant equal central differences of the returned values, at first yield (eps_p = 0, where the
     hardening's slope is infinite) and with prior plastic strain, and the returned stress lies on
     the yield surface (with the plastic rate: at the step's own plastic rate dl / dt)."""
-    from jaxmpm.materials.hydro import _flow_stress, radial_return, thermal_softening
+    from jaxmpm.materials.strength import flow_stress, radial_return, thermal_softening
 
     c = {k: jnp.asarray(v) for k, v in library_material("al2024").constants}
     rng = np.random.default_rng(3)
@@ -142,7 +142,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
     dev = rng.normal(size=(n, 3, 3))
     dev = 0.5 * (dev + np.swapaxes(dev, 1, 2))
     dev = dev - np.trace(dev, axis1=1, axis2=2)[:, None, None] / 3 * np.eye(3)
-    Y0, _ = _flow_stress(strength, c, eps, epsdot, thermal_softening(strength, c, e), 0.0)
+    Y0, _ = flow_stress(strength, c, eps, epsdot, thermal_softening(strength, c, e), 0.0)
     seq0 = np.sqrt(1.5 * np.sum(dev * dev, axis=(1, 2)))
     s_tr = jnp.asarray(dev * (np.asarray(Y0) * rng.uniform(1.05, 3.0, n) / seq0)[:, None, None])  # plastic, 5-200% over
 
@@ -154,9 +154,7 @@ def test_johnson_cook_return_is_differentiated_as_its_root(strength):
         return jnp.sum(s * s, axis=(1, 2)) * 1e-16 + dl, s
 
     s, dl = radial_return(strength, c, s_tr, eps, epsdot, e, jnp.zeros(n), dt=dt)
-    Y, _ = _flow_stress(
-        strength, c, eps + dl, epsdot if dt is None else dl / dt, thermal_softening(strength, c, e), 0.0
-    )
+    Y, _ = flow_stress(strength, c, eps + dl, epsdot if dt is None else dl / dt, thermal_softening(strength, c, e), 0.0)
     np.testing.assert_allclose(np.sqrt(1.5 * np.sum(np.asarray(s) ** 2, axis=(1, 2))), Y, rtol=1e-9)  # on the surface
     args = [s_tr, eps, epsdot, e, c["A"]]
     for i, (x, h) in enumerate(zip(args, [1e-5 * float(jnp.max(jnp.abs(s_tr))), 1e-7, None, 1.0, 1e2])):

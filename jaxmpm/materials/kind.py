@@ -1,10 +1,28 @@
 """Model: what a constitutive model kind provides (its constants' ranges, stress update, wave
-speed, bulk modulus, state at rest). The kinds themselves are registered in `models`."""
+speed, bulk modulus, state at rest). The kinds themselves are registered in `models`. Part: one
+part of a hydrocode composition (`hydro`), and the shorthands of the constants' allowed ranges."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
+
+INF = math.inf
+POS = (0.0, INF, False, False)  # > 0
+NONNEG = (0.0, INF, True, False)  # >= 0
+ANY = (-INF, INF, False, False)
+
+
+@dataclass(frozen=True)
+class Part:
+    """One part of a hydrocode composition (an equation of state, a strength or a failure
+    criterion): its constants (name -> (lo, hi, inc_lo, inc_hi, unit)), and for an equation of
+    state its coefficients fn(c, rho) -> (A, B) and its state at rest initial(c) -> (p0, e0)."""
+
+    constants: dict
+    fn: Callable | None = None
+    initial: Callable | None = None
 
 
 @dataclass(frozen=True)

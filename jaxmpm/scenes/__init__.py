@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from jaxmpm.model.state import init_state
-from jaxmpm.scenes import basic, impact, penetration
+from jaxmpm.scenes import basic, impact, penetration, taylor
 from jaxmpm.scenes.options import builder_options
 
 
@@ -52,16 +52,16 @@ BUILTINS = {
         ranges=impact.debris_cloud_ranges,
     ),
     "taylor_bar": Builtin(
-        impact.taylor_bar,
+        taylor.taylor_bar,
         "OFHC copper rod on a rigid wall at 190 m/s (2D axisymmetric; Johnson & Cook 1983; "
         "--opt material=steel_42crmo4 | copper_bilinear: the Johnson-Cook steel and "
         "bilinear copper verification cases)",
-        ranges=impact.taylor_bar_ranges,
+        ranges=taylor.taylor_bar_ranges,
     ),
     "taylor_brittle": Builtin(
-        impact.taylor_brittle,
+        taylor.taylor_brittle,
         "brittle (Maxwell, damage) rod on a rigid wall at 20 m/s: cracks (2D axisymmetric)",
-        ranges=impact.taylor_brittle_ranges,
+        ranges=taylor.taylor_brittle_ranges,
     ),
     "projectile_concrete": Builtin(
         penetration.projectile_concrete,
