@@ -26,16 +26,16 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
-from jaxmpm.model.scene import is_fluid
-from jaxmpm.model.state import phase_slices
+from jaxmpm.model.scene import Scene, is_fluid
+from jaxmpm.model.state import State, phase_slices
 
 
-def soft_max(z, weight, width):
+def soft_max(z: jax.Array, weight: jax.Array, width: float) -> jax.Array:
     """Weighted log-sum-exp max of z (N,) with weights (N,) >= 0 and width (m)."""
     return width * (logsumexp(z / width, b=weight) - jnp.log(jnp.sum(weight)))
 
 
-def soft_min(z, weight, width):
+def soft_min(z: jax.Array, weight: jax.Array, width: float) -> jax.Array:
     """Weighted log-sum-exp min of z (N,) with weights (N,) >= 0 and width (m): -soft_max(-z)."""
     return -soft_max(-z, weight, width)
 
@@ -45,7 +45,7 @@ def _projectile(scene, state, name):
     return state.x[..., sl, 0], state.x[..., sl, 1], state.mass[..., sl]
 
 
-def axis_weight(r, r_axis):
+def axis_weight(r: jax.Array, r_axis: float) -> jax.Array:
     """(1 - (r / r_axis)^2)^2 inside r_axis, 0 outside: smooth (C1) with compact support. A
     Gaussian weight would leak: in the log-sum-exp its log, -(r / r_axis)^2, is a penalty of only
     width * (r / r_axis)^2 in z, so material far off the axis but a few cells further back wins
@@ -55,8 +55,8 @@ def axis_weight(r, r_axis):
     return u * u
 
 
-def debris_mass(scene, state):
-    """The particles' mass, 0 on the particles of fluid phases (no shear strength: a chamber's gas),
+def debris_mass(scene: Scene, state: State) -> jax.Array:
+    """(N,) kg: the particles' mass, 0 on the particles of fluid phases (no shear strength: a chamber's gas),
     so that the cloud's front is the solids' front."""
     if not any(is_fluid(scene.material(p).model) for p in scene.phases):
         return state.mass
@@ -69,7 +69,9 @@ def debris_mass(scene, state):
     return state.mass * keep
 
 
-def feature_positions(scene, state, width=None, r_axis=None, projectile="projectile"):
+def feature_positions(
+    scene: Scene, state: State, width: float | None = None, r_axis: float | None = None, projectile: str = "projectile"
+) -> jax.Array:
     """(3,) axial positions (m) of points 1, 2, 4 in one State (soft definitions)."""
     h = scene.grid.h
     width = 0.1 * h if width is None else width
@@ -85,7 +87,9 @@ def feature_positions(scene, state, width=None, r_axis=None, projectile="project
     )
 
 
-def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
+def hard_feature_positions(
+    scene: Scene, state: State, r_axis: float | None = None, projectile: str = "projectile"
+) -> jax.Array:
     """(3,) the hard definitions: min z of all particles; min and max z of the projectile's
     particles within r_axis (default h) of the axis."""
     r_axis = scene.grid.h if r_axis is None else r_axis
@@ -101,13 +105,13 @@ def hard_feature_positions(scene, state, r_axis=None, projectile="projectile"):
     )
 
 
-def slope(t, y):
+def slope(t: jax.Array, y: jax.Array) -> jax.Array:
     """Least-squares slope of y (T, ...) against t (T,)."""
     tc = t - jnp.mean(t)
     return jnp.tensordot(tc, y - jnp.mean(y, axis=0), axes=(0, 0)) / jnp.sum(tc**2)
 
 
-def feature_velocities(scene, history, first=0, **kw):
+def feature_velocities(scene: Scene, history: State, first: int = 0, **kw) -> jax.Array:
     """(3,) axial velocities (m/s) of points 1, 2, 4: slopes of their soft positions over the
     outputs history[first:] (a State with a leading time axis)."""
     pos = jnp.stack([feature_positions(scene, _at(history, k), **kw) for k in range(first, history.t.shape[0])])

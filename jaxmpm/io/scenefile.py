@@ -386,7 +386,7 @@ def _builder_options(name, build, options) -> dict:
     return options
 
 
-def load_scene(name_or_path, *, overrides: Mapping[str, Any] | None = None, **options) -> Scene:
+def load_scene(name_or_path: str | os.PathLike, *, overrides: Mapping[str, Any] | None = None, **options) -> Scene:
     """A built-in scene by name (options are passed to its builder, e.g. resolution=0.5), or a
     scene file (.toml path). overrides: {'dotted.key': value} applied to the scene's dict form."""
     path = os.fspath(name_or_path)

@@ -138,7 +138,7 @@ def off_value(scene: Scene, number: Number) -> float | np.ndarray:
     return np.full(scene.dim if number.size == "d" else number.size, float(number.default))
 
 
-def default_params(scene, dtype=None) -> Params:
+def default_params(scene: Scene, dtype: np.dtype | type | None = None) -> Params:
     """Params holding the scene's numbers. dtype: float64 when jax_enable_x64 is on, else float32
     (the two allowed; float64 needs jax_enable_x64)."""
     if not isinstance(scene, Scene):
@@ -227,7 +227,7 @@ def _check_unused(scene: Scene, params: Params) -> None:
         )
 
 
-def check_params(scene, params: Params) -> None:
+def check_params(scene: Scene, params: Params) -> None:
     """Raise ValueError naming the field if a concrete Param is out of range or does not fit the
     scene. Traced values (under jit/grad/vmap) are skipped: this is a host-side check."""
     if not isinstance(params, Params):

@@ -29,8 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm.materials.models import model_of
-from jaxmpm.model.params import check_params
+from jaxmpm.model.params import Params, check_params
 from jaxmpm.model.sampling import sample_phase, usable_region
+from jaxmpm.model.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ def particle_fields(scene) -> np.ndarray:
     return np.concatenate([np.full(len(sample_phase(scene.grid, p)), p.field, np.int32) for p in scene.phases])
 
 
-def init_state(scene, params) -> State:
+def init_state(scene: Scene, params: Params) -> State:
     """Initial State: particles sampled from each phase's geometry, at the rest pressure and internal
     energy of its model (zero but for gases and p0 of an EOS), with the phase's initial velocity;
     mass = rho0 * volume (rho0 from params). dtype follows params. For a built-in scene,

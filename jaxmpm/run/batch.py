@@ -29,7 +29,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxmpm.model.numbers import OLD_NAMES, warn_old_name
 from jaxmpm.model.params import Params, check_params
-from jaxmpm.model.state import check_state
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, check_state
 from jaxmpm.numerics.compile import jit
 from jaxmpm.run.distributed import to_host
 from jaxmpm.run.driver import checkpoint_mode, progress_bar
@@ -181,13 +182,13 @@ def _run_members(scene, params_batch, state, t_end, n_out, n_steps, checkpoint, 
 
 
 def ensemble(
-    scene,
+    scene: Scene,
     params_batch: Params,
-    state=None,
-    t_end=None,
-    n_out=None,
+    state: State | None = None,
+    t_end: float | None = None,
+    n_out: int | None = None,
     *,
-    n_steps=None,
+    n_steps: int | None = None,
     checkpoint="auto",
     shard=True,
     allow_short=False,

@@ -12,8 +12,9 @@ import jax
 import numpy as np
 
 from jaxmpm.model.memory import check_run_memory, run_memory, size_text
-from jaxmpm.model.params import check_params
-from jaxmpm.model.state import check_state, phase_slices
+from jaxmpm.model.params import Params, check_params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, check_state, phase_slices
 from jaxmpm.step import cfl_time_step
 
 
@@ -71,7 +72,7 @@ def host_cfl_step(scene, params, state, cfl=None, checked=False) -> float:
     return dt
 
 
-def cfl_limit(scene, params, state) -> float:
+def cfl_limit(scene: Scene, params: Params, state: State) -> float:
     """The largest stable dt (s) at `state` for CFL = 1: h / max_p (c_p + |v_p|)."""
     return host_cfl_step(scene, params, state, cfl=1.0)
 
@@ -91,7 +92,9 @@ def check_dt(scene, params, state, dt) -> None:
         )
 
 
-def plan_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
+def plan_steps(
+    scene: Scene, params: Params, state: State, t_end: float, dt: float | None = None, safety: float = 1.25
+) -> int:
     """Number of scan steps that reach t_end (s): (t_end - t) / dt with a safety margin for the CFL
     step shrinking during the run (dt: a fixed step in s, checked against the CFL limit; None: the
     number of CFL steps at `state` times `safety` >= 1). Call it outside jit/grad/vmap and pass it

@@ -14,7 +14,8 @@ import numpy as np
 from jaxmpm.run import distributed
 from jaxmpm.io.files import check_new
 from jaxmpm.model.memory import check_memory
-from jaxmpm.model.params import check_params
+from jaxmpm.model.params import Params, check_params
+from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import State, check_state, check_state_dtypes
 from jaxmpm.run import restart
 from jaxmpm.run.driver import checkpoint_mode, fixed_fn, host_driver, is_traced, progress_bar
@@ -22,14 +23,14 @@ from jaxmpm.run.planning import RunPlan, acceleration_bound, check_dt, check_t_e
 
 
 def simulate(
-    scene,
-    params,
-    state,
-    t_end=None,
-    n_out=None,
+    scene: Scene,
+    params: Params,
+    state: State,
+    t_end: float | None = None,
+    n_out: int | None = None,
     *,
-    dt=None,
-    n_steps=None,
+    dt: float | None = None,
+    n_steps: int | None = None,
     progress=True,
     checkpoint="auto",
     chunk=None,

@@ -7,7 +7,9 @@ import inspect
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from jaxmpm.model.state import init_state
+from jaxmpm.model.params import Params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, init_state
 from jaxmpm.scenes import basic, impact, penetration, taylor
 from jaxmpm.scenes.options import builder_options
 
@@ -83,7 +85,7 @@ BUILTINS = {
 DEFAULT_SCENE = "elastic_impact"
 
 
-def initial_state(scene, params):
+def initial_state(scene: Scene, params: Params) -> State:
     """`jaxmpm.init_state`, then the built-in scene's own initial fields (e.g. the vibrating bar's
     mode shape) when the scene is that built-in: named like it and with its bodies (each phase's
     name, material and geometry as its builder makes them, whatever its options). A scene of
