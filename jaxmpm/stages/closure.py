@@ -12,17 +12,23 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+from collections.abc import Callable
+import jax
+from jax.typing import ArrayLike
 
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, fails, pressure
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
 
 
-def alpha(gate, eps_ps, c_h):
+def alpha(gate: ArrayLike, eps_ps: jax.Array, c_h: ArrayLike) -> jax.Array:
     """(E5) alpha = 1 - G tanh(eps_ps / C_h): G the fragmentation gate (N,) or a number, eps_ps
     (N,) the equivalent plastic strain, C_h the closure's strain scale. (N,)"""
     return 1.0 - gate * jnp.tanh(eps_ps / c_h)
 
 
-def fragmentation_gate(layout, state):
+def fragmentation_gate(layout: Layout, state: State) -> jax.Array:
     """(N,) the factor G of alpha = 1 - G tanh(eps_ps / C_h): with scene.fragmentation 'failed',
     the damage D of particles whose phase can fail and 1 for the others; with 'plastic', 1.
 
@@ -46,7 +52,7 @@ def fragmentation_gate(layout, state):
     return jnp.where(jnp.asarray(gated), state.damage, 1.0)
 
 
-def closure_alpha(layout, params, state):
+def closure_alpha(layout: Layout, params: Params, state: State) -> jax.Array:
     """(E5) alpha = 1 - G tanh(eps_ps / C_h): 1 for intact material, -> 0 when fragmented; G the
     fragmentation gate (damage of phases that can fail, else 1: `fragmentation_gate`). With
     fragmentation 'tensile', alpha = 1 - D, D = tanh(eps_t / C_h) the fragmented fraction that the
@@ -56,7 +62,7 @@ def closure_alpha(layout, params, state):
     return alpha(fragmentation_gate(layout, state), state.eps_ps, params.c_h)
 
 
-def pressure_factor(layout, params, state):
+def pressure_factor(layout: Layout, params: Params, state: State) -> jax.Array:
     """(N,) the factor a of the particle pressure in the closure's grid force, common pressure and
     volume rate (E4, E8): alpha, except with fragmentation 'tensile', where a = alpha only in
     tension (p < 0) and 1 in compression: fragments in contact carry compression, not tension."""
@@ -66,7 +72,7 @@ def pressure_factor(layout, params, state):
     return alpha
 
 
-def force_stress(layout, params, state):
+def force_stress(layout: Layout, params: Params, state: State) -> jax.Array:
     """Stress whose divergence the grid sees (N, d, d): with the closure (E8) the pressure scaled by
     the closure's factor a (`pressure_factor`), sigma + (1 - a) p I, so a fragmented material does
     no work through a volume change it does not have (p = state.pressure, the pressure the stress
@@ -80,7 +86,7 @@ def force_stress(layout, params, state):
     )
 
 
-def grid_pressure(layout, params, state):
+def grid_pressure(layout: Layout, params: Params, state: State) -> jax.Array:
     """(N,) the particle pressure the grid sees (Pa): with the closure (E8) a p (`pressure_factor`),
     so that a fragmented material's pressure acts on no node through the common pressure (E6,
     E13) either; without it, p."""
@@ -90,19 +96,19 @@ def grid_pressure(layout, params, state):
     return p
 
 
-def tanh_sum(a, b):
+def tanh_sum(a: ArrayLike, b: ArrayLike) -> jax.Array:
     """tanh(atanh(a) + atanh(b)) = (a + b) / (1 + a b), for a, b in [0, 1]."""
     return (a + b) / (1.0 + a * b)
 
 
-def tensile_fragment_fraction(c_h, damage, counted):
+def tensile_fragment_fraction(c_h: ArrayLike, damage: jax.Array, counted: jax.Array) -> jax.Array:
     """(E5, fragmentation 'tensile') the fragmented fraction D = tanh(eps_t / C_h) after the
     counted plastic strain increment `counted` (>= 0) from D = `damage`: exactly
     tanh(atanh(D) + counted / C_h), in the form that needs no atanh (finite at D = 1). (N,)"""
     return tanh_sum(damage, jnp.tanh(counted / c_h))
 
 
-def tension_mask(layout, state):
+def tension_mask(layout: Layout, state: State) -> jax.Array:
     """(N,) 1.0 where this step's plastic strain counts toward fragmentation (fragmentation
     'tensile'): where the particle is in tension at the step's start, p < 0 (p with the artificial
     viscosity, >= 0). A shock compresses (p > 0): its plastic strain never counts. Else 0.0."""
@@ -112,7 +118,9 @@ def tension_mask(layout, state):
 EQUILIBRATING_STRAIN_MAX = 1.0  # |(p - p_amb) / K| bound of the closure (E8), log volume strain
 
 
-def material_volume_rate(layout, params, state, L, dt, p_amb):
+def material_volume_rate(
+    layout: Layout, params: Params, state: State, L: jax.Array, dt: ArrayLike, p_amb: jax.Array
+) -> jax.Array:
     """(E4) <div v_i> = alpha_i div<v_i> + B_i with (E5) alpha and the closure (E8)
     B_i = (1 - alpha_i)(p_i - p_amb) / (K_i tau_i), tau_i = h / c_i, taken as the exact exponential
     relaxation over the step, (1 - exp(-dt / tau)) / dt. p_amb: (N,) ambient pressure (Pa). (N,) 1/s.
@@ -141,7 +149,9 @@ def material_volume_rate(layout, params, state, L, dt, p_amb):
     return alpha * jnp.trace(L, axis1=1, axis2=2) + B
 
 
-def alpha_of_strain(tensile, c_h, gate, eps_ps, damage, p):
+def alpha_of_strain(
+    tensile: bool, c_h: ArrayLike, gate: jax.Array | None, eps_ps: jax.Array, damage: jax.Array, p: jax.Array
+) -> Callable[[jax.Array], jax.Array] | None:
     """The closure's factor as a function of the plastic strain at the end of the step, eps (N,) ->
     (N,), for the pressure the grid sees (E8) in a model's update; None without the closure (gate
     None). eps_ps, damage, p: the particles' plastic strain, damage and pressure (Pa) at the step's

@@ -12,6 +12,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from jaxmpm.materials.models import MatPoint
 from jaxmpm.stages.closure import (
@@ -23,9 +24,12 @@ from jaxmpm.stages.closure import (
     tension_mask,
 )
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, per_model, pressure
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
 
 
-def artificial_viscosity(layout, params, state, rho_new, trD):
+def artificial_viscosity(layout: Layout, params: Params, state: State, rho_new: jax.Array, trD: jax.Array) -> jax.Array:
     """von Neumann-Richtmyer pressure q = rho l (c_q l (tr D)^2 - c_l c tr D) in compression
     (tr D < 0), 0 in expansion; l the cell size h, c the bulk sound speed. (N,) Pa"""
     K, _ = bulk_modulus_and_wave_speed(layout, params, state)
@@ -36,7 +40,7 @@ def artificial_viscosity(layout, params, state, rho_new, trD):
     return rho_new * l * (c_quadratic * l * comp**2 - c_linear * c * comp)
 
 
-def viscous_particles(layout):
+def viscous_particles(layout: Layout) -> np.ndarray:
     """(N,) static bool: whether each particle's phase takes the artificial viscosity
     (scene.viscous_phases)."""
     return np.concatenate(
@@ -61,7 +65,9 @@ class ConstitutiveUpdate(NamedTuple):
         return getattr(self, key) if isinstance(key, str) else tuple.__getitem__(self, key)
 
 
-def constitutive(layout, params, state, L, dt, p_amb=None):
+def constitutive(
+    layout: Layout, params: Params, state: State, L: jax.Array, dt: ArrayLike, p_amb: jax.Array | None = None
+) -> ConstitutiveUpdate:
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
     model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
     values, sigma_f the stress the grid sees), plastic strain and damage. Returns a `ConstitutiveUpdate`

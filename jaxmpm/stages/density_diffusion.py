@@ -6,17 +6,22 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+import jax
 
 from jaxmpm.materials.models import split_model
 from jaxmpm.model.scene import is_fluid
 from jaxmpm.numerics.transfer import interpolate, scatter
 from jaxmpm.stages import fields
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
+from jaxmpm.numerics.shapes import Stencil
 
 BAROTROPIC = ("linear_fluid", "tait", "linear")  # fluid models, and equations of state, whose p depends on rho alone
 
 
-def diffused_particles(layout):
+def diffused_particles(layout: Layout) -> np.ndarray | None:
     """(N,) static bool: the particles of the barotropic fluid phases (`is_fluid`, the model
     or its equation of state in BAROTROPIC), which take the density diffusion with DDMP and the
     'musl' update (not with the closure, E4, whose volume rate is its own), or None where no
@@ -37,7 +42,7 @@ def diffused_particles(layout):
     return np.concatenate([np.full(sl.stop - sl.start, o, bool) for o, sl in zip(on, layout.slices)])
 
 
-def phase_average(layout, stencils, volume, q):
+def phase_average(layout: Layout, stencils: Stencil, volume: jax.Array, q: jax.Array) -> jax.Array:
     """The volume-weighted nodal average of q (N,) over the particles of each phase, interpolated
     back to the phase's particles: sum_n S_n(x_p) (sum_q V_q q_q S_nq) / (sum_q V_q S_nq), the sums
     over the particles q of p's phase, in q's units. Exact for a linear q inside a phase; one-sided
@@ -57,7 +62,9 @@ def phase_average(layout, stencils, volume, q):
     return interpolate(stencils, layout.phase, q_n)[:, 0]
 
 
-def density_diffusion_rate(layout, params, stencils, state, fluid):
+def density_diffusion_rate(
+    layout: Layout, params: Params, stencils: Stencil, state: State, fluid: np.ndarray
+) -> jax.Array:
     """(N,) 1/s: the volume rate that relaxes each fluid particle's specific volume u = V / m to
     its phase's local average u-bar (`phase_average`) at the rate delta c / h, c the particle's sound
     speed and delta the scene's `density_diffusion`: (delta c / h) (u-bar / u - 1); 0 for the other particles. The density diffusion of

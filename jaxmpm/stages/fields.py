@@ -21,11 +21,14 @@ Shapes: K fields, n nodes, d dimensions; SI units.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import jax
+from jax.typing import ArrayLike
 
 from jaxmpm.numerics.safe import safe_div
+from jaxmpm.numerics.shapes import Stencil
 
 
-def solve_small(A, b):
+def solve_small(A: jax.Array, b: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Solve A x = b for many small systems by Gaussian elimination without pivoting, unrolled
     (A: (..., n, n) symmetric positive definite or diagonally dominant, n <= 4; b: (..., n, k)).
     Returns (x, det A). Batched LAPACK calls are slow for millions of tiny systems on the CPU; this
@@ -35,7 +38,7 @@ def solve_small(A, b):
     return jnp.stack(x, -2), det
 
 
-def solve_rows(A, b):
+def solve_rows(A: list[list[jax.Array]], b: list[jax.Array]) -> tuple[list[jax.Array], jax.Array]:
     """`solve_small` on a system given as nested lists: A[i][j] arrays of one batch shape (...),
     b[i] arrays (..., k). Returns (x as a list of n arrays (..., k), det A (...)). With the batch
     axis minor (nodes last), every operation is one elementwise loop over contiguous memory."""
@@ -59,7 +62,7 @@ def solve_rows(A, b):
     return x, det
 
 
-def lsq_moments(stencils, pressure, volume):
+def lsq_moments(stencils: Stencil, pressure: jax.Array, volume: jax.Array) -> jax.Array:
     """Per-particle, per-stencil-node contributions (N, S, C) for the linear fit (E15):
     w, w r, w r r^T, w p, w p r with w = V_p S_np and r = x_p - x_n. C = 2 + 2 d + d^2."""
     w = (volume[:, None] * stencils.w)[..., None]  # (N, S, 1)
@@ -70,7 +73,7 @@ def lsq_moments(stencils, pressure, volume):
     return jnp.concatenate([w, w * r, w * rr, w * p, w * p * r], -1)
 
 
-def lsq_nodal_pressure(moments, d, h):
+def lsq_nodal_pressure(moments: jax.Array, d: int, h: float) -> jax.Array:
     """(E15) P_nk = a of the fit p ~ a + b . (x - x_n) from the scattered moments (K, n, C);
     the plain weighted average where the fit is singular (a node seen by particles on a line)."""
     w = moments[..., 0]
@@ -95,13 +98,13 @@ def lsq_nodal_pressure(moments, d, h):
     return jnp.where(ok, sol[..., 0], average)
 
 
-def common_pressure(theta, kappa, P):
+def common_pressure(theta: jax.Array, kappa: jax.Array, P: jax.Array) -> jax.Array:
     """(E6) p_n = sum_k theta_k kappa_k P_k / sum_j theta_j kappa_j. theta, kappa, P: (K, n) -> (n,)."""
     tk = theta * kappa
     return safe_div(jnp.sum(tk * P, 0), jnp.sum(tk, 0), 0.0)
 
 
-def share_interface_force(I, m, m_min):
+def share_interface_force(I: jax.Array, m: jax.Array, m_min: ArrayLike) -> jax.Array:
     """(E13) I_nk - (m_nk / M_n) sum_j I_nj: sums to zero over fields at every node and vanishes
     where one field is alone. I: (K, n, d), m: (K, n)."""
     M = jnp.sum(m, 0)
@@ -109,7 +112,9 @@ def share_interface_force(I, m, m_min):
     return I - share[..., None] * jnp.sum(I, 0)[None]
 
 
-def drag_matrix(theta, rho, v, cd, length, k_lin):
+def drag_matrix(
+    theta: jax.Array, rho: jax.Array, v: jax.Array, cd: ArrayLike | None, length: ArrayLike, k_lin: ArrayLike | None
+) -> jax.Array:
     """K_kj of (E3) per node (K, K, n) in kg/(m^3 s), symmetric with a zero diagonal, nodes minor.
     theta: (K, n) volume fractions; rho: (K, n) true densities, kg/m^3; v: (K, n, d) m/s.
     cd (dimensionless, or None: no quadratic term), length (m), k_lin (kg/(m^3 s), or None: no
@@ -118,7 +123,9 @@ def drag_matrix(theta, rho, v, cd, length, k_lin):
     return jnp.stack([jnp.stack([jnp.zeros_like(theta[0]) if K_kj is None else K_kj for K_kj in r]) for r in rows])
 
 
-def drag_rows(theta, rho, v, cd, length, k_lin):
+def drag_rows(
+    theta: jax.Array, rho: jax.Array, v: jax.Array, cd: ArrayLike | None, length: ArrayLike, k_lin: ArrayLike | None
+) -> list[list[jax.Array | None]]:
     """`drag_matrix` as nested lists: rows[k][j] the (n,) coefficient K_kj in kg/(m^3 s), None on
     the diagonal.
     Each of the K (K - 1) / 2 pairs is formed once, component by component, elementwise over the
@@ -139,7 +146,15 @@ def drag_rows(theta, rho, v, cd, length, k_lin):
     return rows
 
 
-def exchange(m, v_star, Kmat, dt, V_n, m_min, impulses=False):
+def exchange(
+    m: jax.Array,
+    v_star: jax.Array,
+    Kmat: jax.Array | list[list[jax.Array | None]],
+    dt: ArrayLike,
+    V_n: jax.Array,
+    m_min: ArrayLike,
+    impulses: bool = False,
+) -> jax.Array | tuple[jax.Array, jax.Array]:
     """(E3) implicit drag: solve m_k v_k + dt V_n sum_j K_kj (v_k - v_j) = m_k v*_k per node.
     m: (K, n), v_star: (K, n, d), Kmat: (K, K, n) (`drag_matrix`) or its nested lists
     (`drag_rows`), V_n: (n,). Returns the exchange force F_k = -V_n sum_j K_kj (v_k - v_j) at the
@@ -179,12 +194,12 @@ def exchange(m, v_star, Kmat, dt, V_n, m_min, impulses=False):
     return F, jnp.stack([c[k][j][:, None] * (v[k] - v[j]) for k, j in field_pairs(n_f)])
 
 
-def field_pairs(n_fields):
+def field_pairs(n_fields: int) -> list[tuple[int, int]]:
     """The pairs (k, j), k < j, of n_fields velocity fields, in the order of `exchange`'s impulses."""
     return [(k, j) for k in range(n_fields) for j in range(k + 1, n_fields)]
 
 
-def drag_heat(J, m, v, m_min):
+def drag_heat(J: jax.Array, m: jax.Array, v: jax.Array, m_min: ArrayLike) -> jax.Array:
     """Heat of the exchange (our closure; scene option drag_heating), (K, n) in J per node and field.
     The drag does the work w_kj = J_kj . (v_k - v_j) on each pair of fields over the step: its
     power (E3) at the fields' velocities v (K, n, d) m/s, which `seed_update` takes from the remap
@@ -205,7 +220,7 @@ def drag_heat(J, m, v, m_min):
     return jnp.stack(heat)
 
 
-def ambient_pressure(theta, kappa, P):
+def ambient_pressure(theta: jax.Array, kappa: jax.Array, P: jax.Array) -> jax.Array:
     """Common pressure (E6) of the OTHER groups at each node, (K, n) Pa, for nodal volume fractions
     theta, compressibilities kappa (1/Pa) and pressures P (Pa) of K groups, each (K, n): the
     ambient pressure the fragmented part of group k relaxes to (E8), with the groups the phases

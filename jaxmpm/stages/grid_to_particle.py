@@ -19,6 +19,7 @@ from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from jaxmpm.numerics import ddmp
 from jaxmpm.numerics.shapes import ddmp_beta, stencil
@@ -98,7 +99,15 @@ def _with_hoop(layout, stencils, L, v, radius):
     return L3.at[:, 2, 2].set(v_r / radius)
 
 
-def particle_velocity_gradient(layout, stencils, v, nodal_volume=None, operators=None, volume=None, radius=None):
+def particle_velocity_gradient(
+    layout: Layout,
+    stencils: Stencil,
+    v: jax.Array,
+    nodal_volume: jax.Array | None = None,
+    operators: ddmp.DDMPGrid | None = None,
+    volume: jax.Array | None = None,
+    radius: jax.Array | None = None,
+) -> jax.Array:
     """L_p = sum_n v_n (x) grad S_n(x_p) for nodal velocities v (K, n_nodes, d); with DDMP
     (nodal_volume (K, n_nodes) = sum_p V_p S_np given, with the operators operators or the particle
     volumes (N,) to build them) the blend (E12):
@@ -114,7 +123,9 @@ def particle_velocity_gradient(layout, stencils, v, nodal_volume=None, operators
     return _with_hoop(layout, stencils, beta[:, None, None] * L + (1 - beta)[:, None, None] * Lbar, v, radius)  # (E12)
 
 
-def velocity_gradient(layout, params, stencils, state, dt, m_min):
+def velocity_gradient(
+    layout: Layout, params: Params, stencils: Stencil, state: State, dt: ArrayLike, m_min: ArrayLike
+) -> jax.Array:
     """Stage 4b of the 'seed' variants: remap at the new positions (with E14 between coupled
     fields), then L_p (N, d, d) there."""
     ddmp_on = layout.scene.shape == "ddmp"
@@ -135,7 +146,17 @@ def velocity_gradient(layout, params, stencils, state, dt, m_min):
     )
 
 
-def remap_exchange(layout, params, stencils, state, v_p, vol_n, dt, m_min, raw=False):
+def remap_exchange(
+    layout: Layout,
+    params: Params,
+    stencils: Stencil,
+    state: State,
+    v_p: jax.Array,
+    vol_n: jax.Array | None,
+    dt: ArrayLike,
+    m_min: ArrayLike,
+    raw: bool = False,
+) -> jax.Array | tuple[jax.Array, jax.Array]:
     """Remap particle velocities v_p onto the nodes of stencil stencils: v_n = sum m_p v_p S_np / m_n,
     walls applied; with several coupled fields the implicit exchange applied again (E14).
     vol_n: nodal volume (K, n_nodes) for the exchange (or None). Returns (K, n_nodes, d); raw=True:

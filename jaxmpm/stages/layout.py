@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmpm.model.state import phase_slices
+from jaxmpm.model.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ class Layout:
         return self.scene.has_interface_forces and len(set(fields_of)) == len(fields_of)
 
     @staticmethod
-    def of(scene, shards=1, axis_name=None) -> "Layout":
+    def of(scene: Scene, shards: int = 1, axis_name: str | None = None) -> "Layout":
         """The Layout of `scene`; with shards > 1, of one of `shards` equal parts of every phase's
         particles (ceil(n / shards) of a phase of n: the per-device block of `jaxmpm.distributed`),
         whose sums and maxima over particles are completed across the mesh axis `axis_name`."""
@@ -87,7 +88,7 @@ class Layout:
         )
 
 
-def boundary_mask(scene) -> np.ndarray | None:
+def boundary_mask(scene: Scene) -> np.ndarray | None:
     """(n_nodes, d) multiplier: 0 for components a wall holds (fixed: all; slip: normal), else 1;
     None where no component is held ('separating' faces hold no component both ways:
     `separating_sides`)."""
@@ -112,7 +113,7 @@ def boundary_mask(scene) -> np.ndarray | None:
     return mask
 
 
-def wall_nodes(scene, idx, k, side):
+def wall_nodes(scene: Scene, idx: np.ndarray, k: int, side: str) -> np.ndarray:
     """(n_nodes,) bool: the nodes (integer indices idx (n_nodes, d)) in the `layers` node layers
     of the face (axis k, side 'lo' or 'hi')."""
     layers, cells = scene.boundary.layers, scene.grid.cells[k]
@@ -120,7 +121,7 @@ def wall_nodes(scene, idx, k, side):
 
 
 @functools.lru_cache(maxsize=16)
-def separating_sides(scene) -> tuple[np.ndarray, np.ndarray] | None:
+def separating_sides(scene: Scene) -> tuple[np.ndarray, np.ndarray] | None:
     """(lo, hi), each (n_nodes, d) bool: the velocity components a 'separating' face holds from
     below (lo: the component may not be negative) and from above (hi: not positive); None where
     no face is 'separating'."""

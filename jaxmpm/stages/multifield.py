@@ -12,6 +12,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from collections.abc import Callable
+from jax.typing import ArrayLike, DTypeLike
 
 from jaxmpm.numerics import ddmp
 from jaxmpm.stages import fields
@@ -19,15 +21,29 @@ from jaxmpm.stages.closure import grid_pressure
 from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 from jaxmpm.stages.nodal import node_volume, particle_radius, pressure_parts, scatter_named
 from jaxmpm.numerics.transfer import interpolate
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.nodal import NodalSums
 
 
-def phase_pressure_and_compressibility(layout, params, state):
+def phase_pressure_and_compressibility(layout: Layout, params: Params, state: State) -> tuple[jax.Array, jax.Array]:
     """(N,) particle pressure the grid sees (Pa; with the closure, `closure.grid_pressure`) and
     compressibility kappa = 1 / K (1/Pa)."""
     return grid_pressure(layout, params, state), 1.0 / bulk_modulus_and_wave_speed(layout, params, state)[0]
 
 
-def interface_force(layout, params, stencils, beta, state, sums, operators, m_min):
+def interface_force(
+    layout: Layout,
+    params: Params,
+    stencils: Stencil,
+    beta: jax.Array | None,
+    state: State,
+    sums: NodalSums,
+    operators: ddmp.DDMPGrid | None,
+    m_min: ArrayLike,
+) -> tuple[jax.Array, jax.Array | None, Callable[[jax.Array], jax.Array] | None]:
     """(E13) interface forces between fields from the common pressure (E6), (K, n_nodes, d):
     I_nk = -sum_{p in k} V_p p(x_p) G_np - integral over the cells of field k of theta_k S_n grad p,
     minus the mass-fraction share of the net, so they sum to zero at each node. Returns
@@ -58,7 +74,7 @@ def interface_force(layout, params, stencils, beta, state, sums, operators, m_mi
     return I, p_amb, volume_rate
 
 
-def ambient_pressure_by_phase(layout, params, stencils, state):
+def ambient_pressure_by_phase(layout: Layout, params: Params, stencils: Stencil, state: State) -> jax.Array:
     """(E8) the closure's ambient pressure at each particle, (N,) Pa: the common pressure (E6) of
     the OTHER phases at the particle's nodes, interpolated; 0 where no other phase is present.
     Formed from one scatter onto a grid per phase of the volume, the compressibility volume and
@@ -86,7 +102,7 @@ def ambient_pressure_by_phase(layout, params, stencils, state):
     return interpolate(stencils, layout.phase, p_amb[..., None])[:, 0]
 
 
-def pressure_moments(layout, stencils, pressure, volume):
+def pressure_moments(layout: Layout, stencils: Stencil, pressure: jax.Array, volume: jax.Array) -> jax.Array:
     """Per-particle, per-stencil-node moments (N, S, C) from which the nodal phase pressures are
     formed: those of the linear fit (E15), or with the continuity form (E7) w and w p of the
     V_p S_np-weighted average (w = V_p S_np)."""
@@ -108,7 +124,7 @@ def _pressure_inputs(layout, sums, moments, dtype):
     return theta, kappa, fields.lsq_nodal_pressure(moments, layout.dim, layout.scene.grid.h)
 
 
-def nodal_common_pressure(layout, sums, moments, dtype):
+def nodal_common_pressure(layout: Layout, sums: NodalSums, moments: jax.Array, dtype: DTypeLike) -> jax.Array:
     """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
     continuity form (E7) its compressive part, max(p_n, 0) with a smooth onset (`contact_onset`)."""
     theta, kappa, P = _pressure_inputs(layout, sums, moments, dtype)
@@ -120,7 +136,7 @@ def nodal_common_pressure(layout, sums, moments, dtype):
     return p
 
 
-def onset_pressure(theta, kappa):
+def onset_pressure(theta: jax.Array, kappa: jax.Array) -> jax.Array:
     """(n_nodes,) the pressure scale of the contact onset (Pa): sqrt(eps) of the nodes' mixture bulk
     modulus sum_k theta_k / sum_k theta_k kappa_k (1.5e-8 of it in float64, 3.5e-4 in float32: 1.1 kPa
     and 27 MPa for aluminium), far above the round-off of a pressure near zero (about eps K) and far
@@ -129,7 +145,7 @@ def onset_pressure(theta, kappa):
     return jnp.where(K > 0, jnp.sqrt(jnp.finfo(K.dtype).eps) * K, 1.0)  # 1 Pa at empty nodes (p = 0 there)
 
 
-def contact_onset(p, p_on):
+def contact_onset(p: jax.Array, p_on: jax.Array) -> jax.Array:
     """max(p, 0) with a smooth onset below zero: p r(1 + p / p_on), r(u) = u^2 (3 - 2 u) on
     [0, 1] (0 below, 1 above); p, p_on in Pa, broadcastable arrays (e.g. (n_nodes,)), result
     of p's shape in Pa. It is p for p >= 0 and 0 for p <= -p_on, continuous with its
@@ -160,7 +176,16 @@ def _shared_weight(layout, dtype):
     return None if shared.all() else jnp.asarray(shared, dtype)[:, None]
 
 
-def interface_force_of_pressure(layout, stencils, beta, state, sums, operators, m_min, p_n):
+def interface_force_of_pressure(
+    layout: Layout,
+    stencils: Stencil,
+    beta: jax.Array | None,
+    state: State,
+    sums: NodalSums,
+    operators: ddmp.DDMPGrid | None,
+    m_min: ArrayLike,
+    p_n: jax.Array,
+) -> jax.Array:
     """(E13) the interface forces (K, n_nodes, d) of a nodal common pressure p_n (n_nodes,): linear
     in p_n at the step's geometry (its transpose is the volume rate of the continuity form, E7)."""
     dtype = state.mass.dtype
@@ -183,7 +208,17 @@ def interface_force_of_pressure(layout, stencils, beta, state, sums, operators, 
     return fields.share_interface_force(I * w[..., None], sums.mass[..., 0] * w, m_min) * w[..., None]
 
 
-def continuity_volume_rate(layout, params, stencils, beta, state, sums, operators, m_min, v):
+def continuity_volume_rate(
+    layout: Layout,
+    params: Params,
+    stencils: Stencil,
+    beta: jax.Array | None,
+    state: State,
+    sums: NodalSums,
+    operators: ddmp.DDMPGrid | None,
+    m_min: ArrayLike,
+    v: jax.Array,
+) -> jax.Array:
     """(E7, made adjoint to E13) the volume rate (N,) in 1/s that each particle adds to the
     divergence of its own field, so that the work of the interface forces is stored, not created.
 
@@ -239,7 +274,16 @@ def _coupling_map(layout, params, stencils, beta, state, sums, operators, m_min)
     return power_density, phase_pressure_and_compressibility(layout, params, state)[0]
 
 
-def exchange_force(layout, params, m, vol, v, dt, m_min, impulses=False):
+def exchange_force(
+    layout: Layout,
+    params: Params,
+    m: jax.Array,
+    vol: jax.Array,
+    v: jax.Array,
+    dt: ArrayLike,
+    m_min: ArrayLike,
+    impulses: bool = False,
+) -> jax.Array | tuple[jax.Array, jax.Array]:
     """(E3) implicit exchange force (K, n_nodes, d) at nodal masses m, volumes vol (K, n_nodes)
     and velocities v (K, n_nodes, d), over a time step dt (s).
 

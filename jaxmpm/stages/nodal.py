@@ -15,12 +15,16 @@ import jax
 import math
 
 import jax.numpy as jnp
+from jax.typing import DTypeLike
 
 from jaxmpm.numerics import ddmp
 from jaxmpm.numerics.transfer import cell_sum, scatter, stencil_apply
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.layout import Layout
 
 
-def grid_shape(layout):
+def grid_shape(layout: Layout) -> tuple[int, ...]:
     """(K, *nodes): the nodal array shape of a Layout's fields."""
     return (layout.n_fields,) + tuple(layout.scene.grid.nodes)
 
@@ -67,7 +71,7 @@ OLD_KEYS = {
 }
 
 
-def scatter_named(layout, stencils, parts, by_phase=False):
+def scatter_named(layout: Layout, stencils: Stencil, parts: dict[str, jax.Array], by_phase: bool = False) -> NodalSums:
     """One scatter of several contributions {NodalSums field: (N, S, C)} -> NodalSums of (K, n_nodes, C),
     K the velocity fields; by_phase: onto one grid per phase instead (K the phases). The channels are
     scattered in the order of `parts`."""
@@ -84,7 +88,9 @@ def scatter_named(layout, stencils, parts, by_phase=False):
     return NodalSums(**out)
 
 
-def stress_parts(stencils, volume, beta, sig, radius=None):
+def stress_parts(
+    stencils: Stencil, volume: jax.Array, beta: jax.Array | None, sig: jax.Array, radius: jax.Array | None = None
+) -> dict[str, jax.Array]:
     """Force contributions of particle stresses sig (N, d, d): the particle part
     -V beta sig . grad S (E11; beta = 1 without DDMP) and DDMP's nodal share V (1 - beta) sig S.
     Axisymmetric (radius (N,) given, sig (N, 3, 3) with theta last): the (r, z) block as above plus
@@ -103,7 +109,9 @@ def stress_parts(stencils, volume, beta, sig, radius=None):
     return parts
 
 
-def pressure_parts(stencils, volume, beta, p, radius=None):
+def pressure_parts(
+    stencils: Stencil, volume: jax.Array, beta: jax.Array | None, p: jax.Array, radius: jax.Array | None = None
+) -> dict[str, jax.Array]:
     """`stress_parts` of the isotropic stress p I (p: (N,) Pa), with DDMP's nodal share as one
     channel `pressure_share` = V (1 - beta) p S instead of the d^2 of `stress_share` (its tensor is p_hat I): the
     same forces from a narrower scatter (the interface forces, E13; `ddmp.nodal_interface_force`
@@ -118,12 +126,12 @@ def pressure_parts(stencils, volume, beta, p, radius=None):
     return parts
 
 
-def particle_radius(layout, state):
+def particle_radius(layout: Layout, state: State) -> jax.Array | None:
     """(N,) particle radius r (m) in axisymmetric scenes, else None."""
     return state.x[:, 0] if layout.scene.axisymmetric else None
 
 
-def nodal_stress_force(layout, operators, sums):
+def nodal_stress_force(layout: Layout, operators: ddmp.DDMPGrid | None, sums: NodalSums) -> jax.Array:
     """Nodal force (K, n_nodes, d) from the scattered stress parts (adds DDMP's E11 second part)."""
     f = sums.force
     grid = layout.scene.grid
@@ -134,7 +142,9 @@ def nodal_stress_force(layout, operators, sums):
     return f
 
 
-def ddmp_operators(layout, stencils, nodal_volume, dtype, volume):
+def ddmp_operators(
+    layout: Layout, stencils: Stencil, nodal_volume: jax.Array, dtype: DTypeLike, volume: jax.Array
+) -> ddmp.DDMPGrid:
     """DDMP grid operators (R1-R3) per field from the nodal particle volume (K, n_nodes) and the
     particle volumes (N,) at stencil stencils; on each field's block of scene.window cells if set."""
     scene = layout.scene
@@ -150,7 +160,7 @@ def ddmp_operators(layout, stencils, nodal_volume, dtype, volume):
     )
 
 
-def node_volume(layout, dtype):
+def node_volume(layout: Layout, dtype: DTypeLike) -> jax.Array:
     """(n_nodes,) the volume of each node's support, m^d (per radian if axisymmetric)."""
     return jnp.asarray(ddmp.node_support(layout.scene.grid, layout.scene.axisymmetric).reshape(-1), dtype)
 

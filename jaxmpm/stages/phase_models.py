@@ -10,11 +10,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from collections.abc import Callable
+from typing import Any
 
 from jaxmpm.materials.models import MODELS, model_of, split_model
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
+from jaxmpm.stages.layout import Layout
 
 
-def fails(model_name) -> bool:
+def fails(model_name: str) -> bool:
     """Whether a model kind has a failure part (a hydrocode composite with spall, Johnson-Cook
     failure, ...) or is a one-piece kind that sets damage (maxwell_brittle)."""
     if model_name in MODELS:
@@ -22,7 +27,7 @@ def fails(model_name) -> bool:
     return bool(split_model(model_name)[2])
 
 
-def pressure(layout, state):
+def pressure(layout: Layout, state: State) -> jax.Array:
     """(N,) pressure of every particle, Pa: state.pressure for the hydrocode models (EOS plus
     artificial viscosity), -tr(stress) / d for the total-stress models (so a user who edits the
     stress of such a State needs not edit the pressure)."""
@@ -38,7 +43,7 @@ def pressure(layout, state):
     )
 
 
-def model_groups(layout):
+def model_groups(layout: Layout) -> tuple[tuple[str, tuple[int, ...], slice | np.ndarray], ...]:
     """The phases grouped by model kind, in order of first appearance: a tuple of (model name,
     phase indices, particles) with particles a slice where the group's particles are contiguous
     in particle order, else a static index array. Static (from the scene)."""
@@ -53,7 +58,7 @@ def model_groups(layout):
     return tuple(groups)
 
 
-def per_model(layout, params, fn, *arrays):
+def per_model(layout: Layout, params: Params, fn: Callable[..., Any], *arrays: jax.Array | None) -> Any:
     """fn(model, constants, *arrays) -> pytree of (n, ...) arrays, evaluated once per model kind
     on that kind's particles and assembled in particle order. arrays: (N, ...) per-particle
     inputs (or None, passed through). fn is written for scalar constants: for a kind shared by
@@ -98,7 +103,7 @@ def per_model(layout, params, fn, *arrays):
     return jax.tree.map(lambda a: a[inverse], joined)
 
 
-def bulk_modulus_and_wave_speed(layout, params, state):
+def bulk_modulus_and_wave_speed(layout: Layout, params: Params, state: State) -> tuple[jax.Array, jax.Array]:
     """(N,) bulk modulus K (Pa) and longitudinal wave speed c (m/s) at the particles' state.
 
     Failed material (damage D, 1 = failed) carries no shear, so its longitudinal speed loses the
