@@ -25,6 +25,8 @@ import os
 
 import jax
 import numpy as np
+from collections.abc import Callable, Iterator
+from typing import Any
 
 CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}  # empty: no YNNPACK fusions
 # Which forms code traced now takes. A JAX user context: JAX keys its caches of traces, lowerings
@@ -53,7 +55,7 @@ def native_reductions() -> bool:
 
 
 @contextlib.contextmanager
-def native_reductions_forms(on: bool = True):
+def native_reductions_forms(on: bool = True) -> Iterator[None]:
     """Within this context, code traced takes the forms of `native_reductions() == on`."""
     if _USER_CONTEXTS:
         with _NATIVE_REDUCTIONS(bool(on)):
@@ -75,7 +77,9 @@ def _traced_natively(fun):
     return traced
 
 
-def bilinear_contraction(unrolled, reduced):
+def bilinear_contraction(
+    unrolled: Callable[[jax.Array, jax.Array], jax.Array], reduced: Callable[[jax.Array, jax.Array], jax.Array]
+) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """A bilinear contraction f(x, A) of tiny per-particle or per-cell arrays with its value by
     `unrolled` (sums of slices: the fastest forward) and its tangent by `reduced` (a reduction over
     a broadcast product) when traced for `jit`: reverse mode transposes the tangent, and a
@@ -90,11 +94,11 @@ def bilinear_contraction(unrolled, reduced):
     @f.defjvp
     def f_jvp(primals, tangents):
         (x, A), (dx, dA) = primals, tangents
-        g = reduced if native_reductions() else unrolled
+        contraction = reduced if native_reductions() else unrolled
         # the value through f itself: where this rule is applied inside a linearisation that the
         # step evaluates (the continuity form's jax.vjp), an outer derivative then meets f again
         # and takes this tangent, not the transpose of the unrolled sums (a padded copy per slice)
-        return f(x, A), g(dx, A) + g(x, dA)
+        return f(x, A), contraction(dx, A) + contraction(x, dA)
 
     return f
 
@@ -113,7 +117,7 @@ def compiler_options() -> dict | None:
     return dict(CPU_OPTIONS)
 
 
-def jit(fun=None, **kwargs):
+def jit(fun: Callable | None = None, **kwargs: Any) -> Callable:
     """`jax.jit(fun, **kwargs)` with jaxmpm's compiler options; usable as a decorator.
     XLA takes compiler options only for a top-level computation: called with tracers (inside
     another jit, whose options then apply to the whole, or under an eager grad or vmap, which

@@ -25,12 +25,15 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from jaxmpm.model.state import particle_fields
 from jaxmpm.numerics.compile import bilinear_contraction
 from jaxmpm.numerics.forms import transfer_form
 from jaxmpm.numerics.safe import safe_div
 from jaxmpm.numerics.shapes import stencil_offsets
+from jaxmpm.model.geometry import Grid
+from jaxmpm.model.scene import Scene
 
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
 _P2 = np.array([[1 / 3, 1 / 6], [1 / 6, 1 / 3]])
@@ -41,8 +44,8 @@ _D3 = _P2[:, :, None] * np.array([-1.0, 1.0])[None, None, :]  # integral phi_a p
 def _weighted_1d():
     """The 1D integrals of _P2, _P3, _D3 with an extra factor s (the radius weight r = r_c + h s of
     an axisymmetric cell), by 4-point Gauss quadrature (exact for these polynomials)."""
-    g, w = np.polynomial.legendre.leggauss(4)
-    s, w = 0.5 * (g + 1), 0.5 * w
+    points, w = np.polynomial.legendre.leggauss(4)
+    s, w = 0.5 * (points + 1), 0.5 * w
     phi = np.stack([1 - s, s])
     dphi = np.array([-1.0, 1.0])[:, None] * np.ones_like(s)
     P2 = np.einsum("aq,bq,q->ab", phi, phi, w * s)
@@ -52,7 +55,7 @@ def _weighted_1d():
 
 
 @functools.lru_cache(maxsize=8)
-def cell_tensors(dim: int, h: float, radius_weight: bool = False):
+def cell_tensors(dim: int, h: float, radius_weight: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """T0[j, n] = integral over a cell of S_j S_n (m^d);
     Tg[j, n, i, k] = integral of S_j S_n dS_i/dx_k (m^(d-1)); j, n, i corner indices (2^d).
     radius_weight: the same integrals with the factor s = (r - r_c) / h along axis 0 (the
@@ -73,7 +76,7 @@ def cell_tensors(dim: int, h: float, radius_weight: bool = False):
     return T0 * h**dim, Tg * h ** (dim - 1)
 
 
-def corners(a, dim):
+def corners(a: jax.Array, dim: int) -> jax.Array:
     """Nodal (K, *nodes, ...) -> per-cell corner values (K, *cells, 2^d, ...)."""
     out = []
     for o in stencil_offsets(dim, 2):
@@ -82,7 +85,7 @@ def corners(a, dim):
     return jnp.stack(out, axis=1 + dim)
 
 
-def add_corners(c, dim):
+def add_corners(c: jax.Array, dim: int) -> jax.Array:
     """Per-cell corner values (K, *cells, 2^d, ...) summed onto nodes (K, *nodes, ...), in c's
     units. The CPU form (`forms.transfer_form`) loops over the corners (`_add_corners_by_slab`);
     the GPU form is one fused sum of the 2^d padded copies, kept as one array (an optimisation
@@ -148,7 +151,7 @@ def _add_corners_padded(c, dim):
     return out
 
 
-def node_support(grid, axisymmetric: bool = False) -> np.ndarray:
+def node_support(grid: Grid, axisymmetric: bool = False) -> np.ndarray:
     """(R1) support volume of each node inside the domain, (*nodes,) m^d: h per axis, h/2 at grid
     edges; axisymmetric: along r the integral of S_n r dr (h r_n inside, h r_n / 2 +- h^2 / 6 at
     the edges), so the volume is per radian like the particles'."""
@@ -193,7 +196,7 @@ class DDMPGrid:
     window: Window | None = None
 
 
-def window_origin(cell_volume, size):
+def window_origin(cell_volume: jax.Array, size: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
     """Each field's block of `size` cells (static tuple): (K, d) int32 its first cell, at the
     field's first occupied cell (cell_volume (K, *cells) > 0) where the grid allows, and (K,) bool
     whether it holds all the field's occupied cells (True for an empty field)."""
@@ -211,7 +214,7 @@ def window_origin(cell_volume, size):
     return jnp.stack(origin, -1).astype(jnp.int32), fits
 
 
-def fitting_window(scene, x, margin=2):
+def fitting_window(scene: Scene, x: ArrayLike, margin: int = 2) -> tuple[int, ...]:
     """A `Scene.window` for positions x (N, d) m (an initial state's): the cells per axis of
     the largest extent of any one field's particles plus `margin` cells on each side, at most the
     grid's cells. Pick the margin from how far the fields will spread; a field that outgrows the
@@ -231,7 +234,7 @@ def _index(origin, n_extra):
     return tuple(origin) + (jnp.zeros((), origin.dtype),) * n_extra
 
 
-def take_window(a, origin, size):
+def take_window(a: jax.Array, origin: jax.Array, size: tuple[int, ...]) -> jax.Array:
     """a (K or 1, *space, ...) -> (K, *size, ...): each field's block of `size` (static) at its
     origin (K, d); an array of one field (the common pressure) is taken at every field's block."""
     d = len(size)
@@ -241,7 +244,7 @@ def take_window(a, origin, size):
     return jax.vmap(lambda ak, o: jax.lax.dynamic_slice(ak, _index(o, len(extra)), tuple(size) + extra))(a, origin)
 
 
-def put_window(w, origin, space):
+def put_window(w: jax.Array, origin: jax.Array, space: tuple[int, ...]) -> jax.Array:
     """The blocks w (K, *size, ...) placed at their origins (K, d) in zeros (K, *space, ...)."""
     d = len(space)
     extra = tuple(w.shape[1 + d :])
@@ -249,8 +252,8 @@ def put_window(w, origin, space):
     return jax.vmap(lambda wk, o: jax.lax.dynamic_update_slice(zeros, wk, _index(o, len(extra))))(w, origin)
 
 
-def _on_windows(grid, dg, op, *nodal):
-    """op(dg, *nodal) -> (K, *nodes, ...) for nodal arrays (K or 1, *nodes, ...). With a window: on
+def _on_windows(grid, operators, op, *nodal):
+    """op(operators, *nodal) -> (K, *nodes, ...) for nodal arrays (K or 1, *nodes, ...). With a window: on
     each field's block, placed back on the grid, or on the whole grid when a field outgrows its
     block. Two choices, both measured on benchmarks/multifield_cost.py:
     - the blocks are taken, and the result placed, under the conditional on `fits`, so that XLA's
@@ -260,9 +263,9 @@ def _on_windows(grid, dg, op, *nodal):
     - the whole-grid branch is rematerialised (jax.checkpoint): a differentiated conditional keeps
       the residuals of both branches, so the whole grid's (zeros, when the blocks are taken) were
       filled every step, 0.3 ms of a 3-field step."""
-    w = dg.window
+    w = operators.window
     if w is None:
-        return op(dg, *nodal)
+        return op(operators, *nodal)
     wnodes = tuple(c + 1 for c in w.size)
     K = w.origin.shape[0]
     blocks = jax.lax.cond(
@@ -270,7 +273,7 @@ def _on_windows(grid, dg, op, *nodal):
         lambda: tuple(take_window(a, w.origin, wnodes) for a in nodal),
         lambda: tuple(jnp.zeros((K,) + wnodes + a.shape[1 + len(wnodes) :], a.dtype) for a in nodal),
     )
-    on_blocks = op(dg, *blocks)
+    on_blocks = op(operators, *blocks)
 
     @jax.checkpoint  # differentiated, a conditional keeps both branches' residuals: these are the inputs alone
     def on_grid(dense, nodal):
@@ -282,7 +285,7 @@ def _on_windows(grid, dg, op, *nodal):
 FILL_RAMP = 0.25
 
 
-def cell_weight(expected, cell_volume):
+def cell_weight(expected: jax.Array, cell_volume: jax.Array) -> jax.Array:
     """(R2) weight of each cell in the DDMP integrals: 1 where the field's particles hold at least
     FILL_RAMP of the volume `expected` that the nodal fill theta puts in the cell, falling linearly
     to 0 with no particle. A cell that holds only a trace of material (a dust of 1e-12 of its
@@ -324,7 +327,13 @@ def _cell_integrator(grid, dtype, axisymmetric, r_c=None):
     return integrate
 
 
-def build(grid, nodal_volume, cell_volume, axisymmetric=False, window=None):
+def build(
+    grid: Grid,
+    nodal_volume: jax.Array,
+    cell_volume: jax.Array,
+    axisymmetric: bool = False,
+    window: tuple[int, ...] | None = None,
+) -> DDMPGrid:
     """Assemble V and A from the nodal particle volume (K, *nodes) = sum_p V_p S_n(x_p) and the
     particle volume in each cell (K, *cells); axisymmetric: integrals weighted by the radius r
     (volumes per radian). window: None (the whole grid) or the cells per axis of each field's
@@ -389,21 +398,21 @@ _scalar_contraction = bilinear_contraction(
 )
 
 
-def nodal_stress_force(grid, dg, sigma_hat_volume):
+def nodal_stress_force(grid: Grid, operators: DDMPGrid, sigma_hat_volume: jax.Array) -> jax.Array:
     """(E11) second part: f_i = - sum_j sigma_hat_j . (S_j, grad S_i).
     sigma_hat_volume: (K, *nodes, d, d) = sum_p V_p (1 - beta_p) sigma_p S_j(x_p) (Pa m^d).
     Returns (K, *nodes, d) in N."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
 
-    def op(dg, shv):
-        sc = corners(safe_div(shv, dg.V[..., None, None], vmin), d)  # (..., j, a, b)
-        return add_corners(-_force_contraction(sc, dg.A), d)
+    def op(operators, shv):
+        sc = corners(safe_div(shv, operators.V[..., None, None], vmin), d)  # (..., j, a, b)
+        return add_corners(-_force_contraction(sc, operators.A), d)
 
-    return _on_windows(grid, dg, op, sigma_hat_volume)
+    return _on_windows(grid, operators, op, sigma_hat_volume)
 
 
-def nodal_interface_force(grid, dg, p_hat_volume, p):
+def nodal_interface_force(grid: Grid, operators: DDMPGrid, p_hat_volume: jax.Array | None, p: jax.Array) -> jax.Array:
     """The DDMP part of the interface forces (E13), in one pass over the cells:
     f_n = - sum_j p_hat_j (S_j, grad S_n) - sum_i p_i (S_n, grad S_i).
     The first term is the stress force (E11, second part) of an isotropic nodal share p_hat I, from
@@ -414,22 +423,22 @@ def nodal_interface_force(grid, dg, p_hat_volume, p):
     d = grid.dim
     vmin = 1e-12 * grid.h**d
 
-    def op(dg, p, *p_hat_volume):
-        c = -_scalar_contraction(corners(p, d), dg.A)
+    def op(operators, p, *p_hat_volume):
+        c = -_scalar_contraction(corners(p, d), operators.A)
         for phv in p_hat_volume:
-            c = c - _isotropic_contraction(corners(safe_div(phv, dg.V, vmin), d), dg.A)
+            c = c - _isotropic_contraction(corners(safe_div(phv, operators.V, vmin), d), operators.A)
         return add_corners(c, d)
 
-    return _on_windows(grid, dg, op, p[None], *(() if p_hat_volume is None else (p_hat_volume,)))
+    return _on_windows(grid, operators, op, p[None], *(() if p_hat_volume is None else (p_hat_volume,)))
 
 
-def nodal_velocity_gradient(grid, dg, v):
+def nodal_velocity_gradient(grid: Grid, operators: DDMPGrid, v: jax.Array) -> jax.Array:
     """(E12) L-bar_j = (1 / V_j) sum_i v_i (x) (S_j, grad S_i). v: (K, *nodes, d) -> (K, *nodes, d, d)."""
     d = grid.dim
     vmin = 1e-12 * grid.h**d
 
-    def op(dg, v):
+    def op(operators, v):
         vc = corners(v, d)  # (..., i, a)
-        return safe_div(add_corners(_gradient_contraction(vc, dg.A), d), dg.V[..., None, None], vmin)
+        return safe_div(add_corners(_gradient_contraction(vc, operators.A), d), operators.V[..., None, None], vmin)
 
-    return _on_windows(grid, dg, op, v)
+    return _on_windows(grid, operators, op, v)

@@ -24,6 +24,7 @@ import contextvars
 import os
 
 import jax
+from collections.abc import Iterator
 
 ENV = "JAXMPM_TRANSFER_FORM"
 FORMS = ("cpu", "gpu")
@@ -47,7 +48,7 @@ def transfer_form() -> str:
 
 
 @contextlib.contextmanager
-def transfer_forms(form: str):
+def transfer_forms(form: str) -> Iterator[None]:
     """Within this context, steps traced take the given form ("auto", "cpu" or "gpu"), whatever
     the backend and the environment say: e.g. the GPU form traced and run on the CPU."""
     token = _FORCED.set(_checked(form, "transfer form"))

@@ -16,6 +16,9 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from collections.abc import Sequence
+from jaxmpm.model.geometry import Grid
+from jaxmpm.model.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -28,7 +31,7 @@ class Stencil:
     dpos: jax.Array  # (N, S, d) x_n - x_p, m
 
 
-def node_strides(nodes):
+def node_strides(nodes: Sequence[int]) -> np.ndarray:
     """(d,) int32 flat-index strides of an array of shape `nodes` (C order)."""
     return np.array([int(np.prod(nodes[k + 1 :])) for k in range(len(nodes))], dtype=np.int32)
 
@@ -103,13 +106,13 @@ def _tensor(grid, x, width, base_shift, w1d, dw1d, lo_clip, hi_clip):
     return Stencil(node=node, w=w, dw=dw, cell=cell, xi=fx, dpos=dpos)
 
 
-def linear_weights_1d(f):
+def linear_weights_1d(f: jax.Array) -> tuple[jax.Array, jax.Array]:
     """1D hat weights of the 2 nodes of an axis at f in [0, 1] past the first: a tuple of arrays
     shaped like f."""
     return (1 - f, f)
 
 
-def bspline2_weights_1d(f):
+def bspline2_weights_1d(f: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """1D quadratic B-spline weights of the 3 nodes of an axis at f in [0.5, 1.5] past the first:
     a tuple of arrays shaped like f."""
     return (0.5 * (1.5 - f) ** 2, 0.75 - (f - 1) ** 2, 0.5 * (f - 0.5) ** 2)
@@ -119,26 +122,26 @@ def bspline2_weights_1d(f):
 TENSOR_SHAPES = {"linear": (2, 0.0, 1, linear_weights_1d), "bspline2": (3, 0.5, 2, bspline2_weights_1d)}
 
 
-def linear_stencil(grid, x) -> Stencil:
+def linear_stencil(grid: Grid, x: jax.Array) -> Stencil:
     """Linear hat S_n(x) = prod_d (1 - |x_d - x_n,d| / h)."""
     w1d = lambda f: jnp.stack(linear_weights_1d(f), 1)
     dw1d = lambda f: jnp.stack([-jnp.ones_like(f), jnp.ones_like(f)], 1)
     return _tensor(grid, x, 2, 0.0, w1d, dw1d, 0, 1)
 
 
-def bspline2_stencil(grid, x) -> Stencil:
+def bspline2_stencil(grid: Grid, x: jax.Array) -> Stencil:
     """Quadratic B-spline (3 nodes per axis, base = floor(x / h - 1/2))."""
     w1d = lambda f: jnp.stack(bspline2_weights_1d(f), 1)
     dw1d = lambda f: jnp.stack([f - 1.5, -2 * (f - 1), f - 0.5], 1)
     return _tensor(grid, x, 3, 0.5, w1d, dw1d, 0, 2)
 
 
-def stencil(scene, x) -> Stencil:
+def stencil(scene: Scene, x: jax.Array) -> Stencil:
     """The scene's shape functions at x (DDMP uses the linear hat)."""
     return bspline2_stencil(scene.grid, x) if scene.shape == "bspline2" else linear_stencil(scene.grid, x)
 
 
-def ddmp_beta(xi):
+def ddmp_beta(xi: jax.Array) -> jax.Array:
     """(E9) blend beta = prod_d 4 xi_d (1 - xi_d): 1 at a cell centre, 0 on cell faces. xi (N, d)."""
     return _product_over_axes(4 * xi * (1 - xi))
 

@@ -34,49 +34,58 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from collections.abc import Callable, Sequence
+from typing import Any
+from jax.typing import ArrayLike, DTypeLike
 
 from jaxmpm.numerics.compile import bilinear_contraction
 from jaxmpm.numerics.shapes import TENSOR_SHAPES, node_strides
 from jaxmpm.numerics.shapes import stencil_offsets
+from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.model.geometry import Grid
 
 
-def _rows(st, field, n_nodes):
-    return st.node if field is None else st.node + (field * int(n_nodes))[:, None].astype(st.node.dtype)
+def _rows(stencils, field, n_nodes):
+    return (
+        stencils.node if field is None else stencils.node + (field * int(n_nodes))[:, None].astype(stencils.node.dtype)
+    )
 
 
-def scatter(st, field, contrib, n_fields, n_nodes):
+def scatter(stencils: Stencil, field: ArrayLike | None, contrib: jax.Array, n_fields: int, n_nodes: int) -> jax.Array:
     """sum over particles of contrib (N, S, C) into nodes: returns (n_fields, n_nodes, C).
     field: (N,) int velocity-field index of each particle, or None when there is one field."""
     n, s, c = contrib.shape
-    rows = _rows(st, field, n_nodes).reshape(-1)
+    rows = _rows(stencils, field, n_nodes).reshape(-1)
     out = jnp.zeros((n_fields * n_nodes, c), contrib.dtype).at[rows].add(contrib.reshape(n * s, c))
     return out.reshape(n_fields, n_nodes, c)
 
 
-def gather(st, field, nodal):
+def gather(stencils: Stencil, field: ArrayLike | None, nodal: jax.Array) -> jax.Array:
     """Nodal values (K, n_nodes, C) at each particle's stencil nodes in its own field: (N, S, C)."""
     k, n_nodes, c = nodal.shape
-    return nodal.reshape(k * n_nodes, c)[_rows(st, field, n_nodes)]
+    return nodal.reshape(k * n_nodes, c)[_rows(stencils, field, n_nodes)]
 
 
-def scatter_weighted(st, field, values, n_fields, n_nodes):
+def scatter_weighted(
+    stencils: Stencil, field: ArrayLike | None, values: jax.Array, n_fields: int, n_nodes: int
+) -> jax.Array:
     """sum_p S_np values_p: values (N, C) -> (K, n_nodes, C)."""
-    return scatter(st, field, st.w[..., None] * values[:, None, :], n_fields, n_nodes)
+    return scatter(stencils, field, stencils.w[..., None] * values[:, None, :], n_fields, n_nodes)
 
 
-def interpolate(st, field, nodal):
+def interpolate(stencils: Stencil, field: ArrayLike | None, nodal: jax.Array) -> jax.Array:
     """sum_n S_np nodal_n: (K, n_nodes, C) -> (N, C)."""
-    return jnp.sum(st.w[..., None] * gather(st, field, nodal), axis=1)
+    return jnp.sum(stencils.w[..., None] * gather(stencils, field, nodal), axis=1)
 
 
-def cell_count(st, field, n_fields, n_cells, dtype):
+def cell_count(stencils: Stencil, field: ArrayLike | None, n_fields: int, n_cells: int, dtype: DTypeLike) -> jax.Array:
     """(K, n_cells) number of particles of each field in each cell."""
-    return cell_sum(st, field, n_fields, n_cells, jnp.ones(st.cell.shape[0], dtype))
+    return cell_sum(stencils, field, n_fields, n_cells, jnp.ones(stencils.cell.shape[0], dtype))
 
 
-def cell_sum(st, field, n_fields, n_cells, values):
+def cell_sum(stencils: Stencil, field: ArrayLike | None, n_fields: int, n_cells: int, values: jax.Array) -> jax.Array:
     """(K, n_cells) sum of a particle quantity (N,) over the particles of each field in each cell."""
-    rows = st.cell if field is None else st.cell + (field * int(n_cells)).astype(st.cell.dtype)
+    rows = stencils.cell if field is None else stencils.cell + (field * int(n_cells)).astype(stencils.cell.dtype)
     return jnp.zeros(n_fields * n_cells, values.dtype).at[rows].add(values).reshape(n_fields, n_cells)
 
 
@@ -90,7 +99,7 @@ _apply = bilinear_contraction(
 )
 
 
-def stencil_outer(a, b):
+def stencil_outer(a: jax.Array, b: jax.Array) -> jax.Array:
     """sum_s a_s (x) b_s per particle: a (N, S, A), b (N, S, B) -> (N, A, B), e.g. the velocity
     gradient sum_n v_n (x) grad S_n (1/s for v in m/s, grad S in 1/m). Value unrolled over the S
     stencil nodes (one fused loop); tangent a reduction under jaxmpm.jit
@@ -98,7 +107,7 @@ def stencil_outer(a, b):
     return _outer(a, b)
 
 
-def stencil_apply(m, b):
+def stencil_apply(m: jax.Array, b: jax.Array) -> jax.Array:
     """m_p . b_ps per particle and stencil node: m (N, A, B), b (N, S, B) -> (N, S, A), e.g. the
     stress force sigma . grad S_n (Pa/m). Value unrolled over the B components; tangent a
     reduction under jaxmpm.jit."""
@@ -129,7 +138,7 @@ class OffsetStencil:
     nodes: tuple  # nodes per axis
 
 
-def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
+def offset_stencil(grid: Grid, x: jax.Array, shape: str = "bspline2") -> OffsetStencil:
     """The OffsetStencil of shape 'bspline2' (quadratic B-spline, 3 nodes per axis) or 'linear'
     (hat, 2 nodes per axis) at positions x (N, d); the same nodes and weights as
     `shapes.bspline2_stencil` / `shapes.linear_stencil`."""
@@ -153,41 +162,54 @@ def offset_stencil(grid, x, shape="bspline2") -> OffsetStencil:
     )
 
 
-def _at_offset(ost, i):
+def _at_offset(offset_stencils, i):
     """Weights S_n(x_p) (N,), x_n - x_p (d, N) in m and node index (N,) of offset i (traced)."""
-    o = jnp.asarray(ost.offsets)[i]
-    d = ost.fx.shape[0]
-    w = ost.w1[o[0], 0]
+    o = jnp.asarray(offset_stencils.offsets)[i]
+    d = offset_stencils.fx.shape[0]
+    w = offset_stencils.w1[o[0], 0]
     for k in range(1, d):
-        w = w * ost.w1[o[k], k]
-    dpos = (o.astype(ost.fx.dtype)[:, None] - ost.fx) * ost.h
-    node = ost.base + jnp.sum(o * jnp.asarray(ost.strides)).astype(ost.base.dtype)
+        w = w * offset_stencils.w1[o[k], k]
+    dpos = (o.astype(offset_stencils.fx.dtype)[:, None] - offset_stencils.fx) * offset_stencils.h
+    node = offset_stencils.base + jnp.sum(o * jnp.asarray(offset_stencils.strides)).astype(offset_stencils.base.dtype)
     return w, dpos, node
 
 
-def scatter_by_offset(ost, contrib, n_channels, n_nodes, dtype):
+def scatter_by_offset(
+    offset_stencils: OffsetStencil,
+    contrib: Callable[[jax.Array, jax.Array], jax.Array],
+    n_channels: int,
+    n_nodes: int,
+    dtype: DTypeLike,
+) -> jax.Array:
     """sum_p over every stencil offset of contrib(w, dpos) (C, N) into nodes: returns (n_nodes, C).
     contrib gets the offset's weights w (N,) and x_n - x_p (d, N); one scatter of C rows per offset."""
 
     @jax.checkpoint  # reverse mode recomputes the offset's weights instead of storing S copies
     def add(i, out):
-        w, dpos, node = _at_offset(ost, i)
+        w, dpos, node = _at_offset(offset_stencils, i)
         return out.at[:, node].add(contrib(w, dpos), mode="promise_in_bounds")
 
-    out = jax.lax.fori_loop(0, len(ost.offsets), add, jnp.zeros_like(ost.fx, dtype, shape=(n_channels, n_nodes)))
+    out = jax.lax.fori_loop(
+        0, len(offset_stencils.offsets), add, jnp.zeros_like(offset_stencils.fx, dtype, shape=(n_channels, n_nodes))
+    )
     return out.T
 
 
-def gather_by_offset(ost, nodal, accumulate, init):
+def gather_by_offset(
+    offset_stencils: OffsetStencil,
+    nodal: jax.Array,
+    accumulate: Callable[[Any, jax.Array, jax.Array, jax.Array], Any],
+    init: Any,
+) -> Any:
     """Fold the nodal values (C, n_nodes) at every stencil offset into a per-particle carry:
     carry = accumulate(carry, w, dpos, values) with values (C, N) at the offset's nodes."""
 
     @jax.checkpoint
     def step(i, carry):
-        w, dpos, node = _at_offset(ost, i)
+        w, dpos, node = _at_offset(offset_stencils, i)
         return accumulate(carry, w, dpos, nodal.at[:, node].get(mode="promise_in_bounds"))
 
-    return jax.lax.fori_loop(0, len(ost.offsets), step, init)
+    return jax.lax.fori_loop(0, len(offset_stencils.offsets), step, init)
 
 
 # ------------------------------------------------------------ the scatter in blocks of particles
@@ -206,7 +228,14 @@ def _on_axis(a, k, d):
     return jnp.moveaxis(a, 0, 1).reshape((nb,) + (1,) * k + (width,) + (1,) * (d - k - 1) + (block,))
 
 
-def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOCK):
+def scatter_by_window(
+    offset_stencils: OffsetStencil,
+    contrib: Callable[..., list[jax.Array]],
+    inputs: Sequence[jax.Array],
+    n_channels: int,
+    dtype: DTypeLike,
+    block: int = WINDOW_BLOCK,
+) -> jax.Array:
     """sum_p over each particle's stencil of contrib into nodes: returns (n_nodes, C).
 
     The particles go in blocks of `block`, particles on the minor axis: contrib(w, dpos, *inputs)
@@ -221,23 +250,27 @@ def scatter_by_window(ost, contrib, inputs, n_channels, dtype, block=WINDOW_BLOC
     transposes them to the scatter's row layout, which took most of its time; rows formed with
     the particles major (the (N, S, C) `scatter`) are poorly vectorised. On the CPU this
     particle-to-grid transfer alone is 3-4x faster in 3D than the offset loop and 2x in 2D."""
-    width, d, n = ost.w1.shape
+    width, d, n = offset_stencils.w1.shape
     nb = -(-n // block)
-    w1 = _block(ost.w1, nb, block)  # (width, d, nb, block)
-    fx = _block(ost.fx, nb, block)  # (d, nb, block)
+    w1 = _block(offset_stencils.w1, nb, block)  # (width, d, nb, block)
+    fx = _block(offset_stencils.fx, nb, block)  # (d, nb, block)
     w = _on_axis(w1[:, 0], 0, d)
     for k in range(1, d):
         w = w * _on_axis(w1[:, k], k, d)
     o = jnp.arange(width, dtype=fx.dtype)[:, None, None]
-    dpos = tuple(_on_axis((o - fx[k]) * ost.h, k, d) for k in range(d))
+    dpos = tuple(_on_axis((o - fx[k]) * offset_stencils.h, k, d) for k in range(d))
     blocked = [_block(a, nb, block).reshape(a.shape[:-1] + (nb,) + (1,) * d + (block,)) for a in inputs]
     parts = contrib(w, dpos, *blocked)
     updates = jnp.stack([jnp.broadcast_to(c, w.shape).astype(dtype) for c in parts], -2)  # (nb, width x d, C, block)
-    idx = jnp.moveaxis(_block(ost.corner, nb, block), 0, -1)  # (nb, block, d)
+    idx = jnp.moveaxis(_block(offset_stencils.corner, nb, block), 0, -1)  # (nb, block, d)
     dn = jax.lax.ScatterDimensionNumbers(
         update_window_dims=tuple(range(1, d + 2)), inserted_window_dims=(), scatter_dims_to_operand_dims=tuple(range(d))
     )
     out = jax.lax.scatter_add(
-        jnp.zeros(ost.nodes + (n_channels,), dtype), idx, updates, dn, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+        jnp.zeros(offset_stencils.nodes + (n_channels,), dtype),
+        idx,
+        updates,
+        dn,
+        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS,
     )
     return out.reshape(-1, n_channels)
