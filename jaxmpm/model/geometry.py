@@ -70,10 +70,10 @@ class Box:
             if not b > a:
                 fail(f"geometry.hi[{d}]", b, f"> geometry.lo[{d}] = {a}")
 
-    def contains(self, x):
+    def contains(self, x: np.ndarray) -> np.ndarray:
         return np.all((x >= np.asarray(self.lo)) & (x < np.asarray(self.hi)), axis=-1)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         return {"type": "box", "lo": list(self.lo), "hi": list(self.hi)}
 
 
@@ -92,17 +92,17 @@ class Sphere:
         object.__setattr__(self, "radius", r)
 
     @property
-    def lo(self):
+    def lo(self) -> tuple[float, ...]:
         return tuple(c - self.radius for c in self.center)
 
     @property
-    def hi(self):
+    def hi(self) -> tuple[float, ...]:
         return tuple(c + self.radius for c in self.center)
 
-    def contains(self, x):
+    def contains(self, x: np.ndarray) -> np.ndarray:
         return np.sum((x - np.asarray(self.center)) ** 2, axis=-1) < self.radius**2
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         return {"type": "sphere", "center": list(self.center), "radius": self.radius}
 
 
@@ -126,27 +126,27 @@ class Difference:
         object.__setattr__(self, "minus", minus)
 
     @property
-    def lo(self):
+    def lo(self) -> tuple[float, ...]:
         return self.base.lo
 
     @property
-    def hi(self):
+    def hi(self) -> tuple[float, ...]:
         return self.base.hi
 
-    def contains(self, x):
+    def contains(self, x: np.ndarray) -> np.ndarray:
         inside = self.base.contains(x)
         for g in self.minus:
             inside = inside & ~g.contains(x)
         return inside
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         return {"type": "difference", "base": self.base.to_dict(), "minus": [g.to_dict() for g in self.minus]}
 
 
 GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
 
 
-def geometry_from_dict(d: Mapping, where: str):
+def geometry_from_dict(d: Mapping, where: str) -> Box | Sphere | Difference:
     """Box, Sphere or Difference from its scene-file table; ValueError naming `where` on bad input."""
     if not isinstance(d, Mapping):
         fail(where, d, "a table with key 'type' (box | sphere | difference)")
@@ -222,5 +222,5 @@ class Grid:
     def hi(self) -> tuple[float, ...]:
         return tuple(o + c * self.h for o, c in zip(self.origin, self.cells))
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         return {"cells": list(self.cells), "h": self.h, "origin": list(self.origin)}

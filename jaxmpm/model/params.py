@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike, DTypeLike
 
 from jaxmpm.materials.models import check_constant, model_of
 from jaxmpm.model.numbers import BY_NAME, NUMBERS, OLD_NAMES, Number, warn_old_name
@@ -89,7 +90,7 @@ class Params:
         warn_old_name("av_quadratic")
         return self.artificial_viscosity[..., 1]
 
-    def with_constant(self, phase: str, name: str, value) -> "Params":
+    def with_constant(self, phase: str, name: str, value: ArrayLike) -> "Params":
         """A copy with `params.phases[phase][name] = value`."""
         if phase not in self.phases:
             raise ValueError(f"params.phases[{phase!r}] is unknown: phases are {list(self.phases)}")
@@ -106,7 +107,7 @@ class Params:
 jax.tree_util.register_dataclass(Params, data_fields=list(FIELDS), meta_fields=[])
 
 
-def check_dtype(dtype) -> None:
+def check_dtype(dtype: DTypeLike) -> None:
     """float32, or float64 where jax_enable_x64 is on: else a ValueError naming the allowed ones."""
     allowed = ("float32", "float64") if jax.config.jax_enable_x64 else ("float32",)
     try:

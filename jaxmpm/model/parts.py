@@ -79,7 +79,7 @@ class Phase:
             _fail(f"phase.{self.name}.fraction", frac, "(0, 1]")
         object.__setattr__(self, "fraction", frac)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         mat = self.material if isinstance(self.material, str) else self.material.key
         return {
             "name": self.name,

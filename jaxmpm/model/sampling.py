@@ -6,9 +6,15 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from typing import TYPE_CHECKING
+from jaxmpm.model.geometry import Grid
+from jaxmpm.model.parts import Phase
+
+if TYPE_CHECKING:  # for annotations only: scene.py imports this module
+    from jaxmpm.model.scene import Scene
 
 
-def lattice_cells(grid, phase) -> tuple[np.ndarray, np.ndarray]:
+def lattice_cells(grid: Grid, phase: Phase) -> tuple[np.ndarray, np.ndarray]:
     """(first, past-last) cell index per axis (d,) int64 of the grid cells the phase's bounding box
     touches: `sample_phase` lays its lattice over them."""
     lo = np.asarray(grid.origin, float)
@@ -18,7 +24,7 @@ def lattice_cells(grid, phase) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=64)
-def sample_phase(grid, phase) -> np.ndarray:
+def sample_phase(grid: Grid, phase: Phase) -> np.ndarray:
     """Particle positions (n, d) of a phase: ppc^d points per cell on a regular lattice,
     kept where inside the geometry. Deterministic."""
     h, ppc, d = grid.h, phase.ppc, grid.dim
@@ -29,7 +35,7 @@ def sample_phase(grid, phase) -> np.ndarray:
     return pts[phase.geometry.contains(pts)]
 
 
-def usable_region(scene) -> tuple[float, np.ndarray, np.ndarray]:
+def usable_region(scene: Scene) -> tuple[float, np.ndarray, np.ndarray]:
     """(margin, lo, hi): the part of the grid where a particle's stencil stays on the grid, lo and hi
     (d,) m, `margin` cells in from each face (half a cell for the quadratic B-spline, else none)."""
     margin = 0.5 if scene.shape == "bspline2" else 0.0
@@ -38,7 +44,7 @@ def usable_region(scene) -> tuple[float, np.ndarray, np.ndarray]:
     return margin, lo, hi
 
 
-def check_sampling(scene) -> None:
+def check_sampling(scene: Scene) -> None:
     """Raise ValueError if a phase has no particle, a particle lies where its stencil leaves the
     grid, or bodies of one velocity field overlap with volume fractions that sum to more than 1
     (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 # the geometry and the scene's parts live in jaxmpm.model.geometry and jaxmpm.model.parts; their
 # names stay importable from here
@@ -233,5 +234,5 @@ class Scene:
     def phase_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.phases)
 
-    def replace(self, **changes) -> "Scene":
+    def replace(self, **changes: Any) -> "Scene":
         return dataclasses.replace(self, **changes)

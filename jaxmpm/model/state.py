@@ -63,7 +63,7 @@ jax.tree_util.register_dataclass(
 )
 
 
-def phase_slices(scene) -> tuple[slice, ...]:
+def phase_slices(scene: Scene) -> tuple[slice, ...]:
     """Static slice of each phase's particles in the State arrays (scene order)."""
     out, start = [], 0
     for p in scene.phases:
@@ -73,7 +73,7 @@ def phase_slices(scene) -> tuple[slice, ...]:
     return tuple(out)
 
 
-def particle_fields(scene) -> np.ndarray:
+def particle_fields(scene: Scene) -> np.ndarray:
     """(N,) velocity-field index of every particle (static)."""
     return np.concatenate([np.full(len(sample_phase(scene.grid, p)), p.field, np.int32) for p in scene.phases])
 
@@ -148,7 +148,7 @@ def check_state_dtypes(state: State) -> None:
             )
 
 
-def check_state(scene, state: State) -> None:
+def check_state(scene: Scene, state: State) -> None:
     """Raise ValueError naming the field, the particle (index and phase) and the allowed range if a
     concrete State does not fit the scene: array shapes, finite values, mass and volume > 0,
     damage in [0, 1], plastic strain >= 0, det F > 0, particles inside the grid."""
