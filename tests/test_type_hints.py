@@ -27,9 +27,11 @@ def public_modules() -> Iterator[ModuleType]:
 
 
 def class_functions(cls: type) -> Iterator[tuple[str, Callable]]:
-    """The public methods of a class (static, class and property getters included)."""
+    """The public methods of a class (static, class and property getters included; not a
+    dataclass field's default value, such as a function held by a field)."""
+    fields = getattr(cls, "__dataclass_fields__", {})
     for name, member in vars(cls).items():
-        if name.startswith("_"):
+        if name.startswith("_") or name in fields:
             continue
         if isinstance(member, (staticmethod, classmethod)):
             member = member.__func__

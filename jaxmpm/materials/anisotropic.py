@@ -23,6 +23,9 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
+
+from jaxmpm.materials.kind import Constants
 
 _P = (0.0, math.inf, False, False)
 CONSTANTS = {
@@ -39,7 +42,7 @@ _VOIGT = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
 _VOIGT_INDEX = np.array([[_VOIGT.index((min(a, b), max(a, b))) for b in range(3)] for a in range(3)])  # (3, 3)
 
 
-def voigt_stiffness(c):
+def voigt_stiffness(c: Constants) -> tuple[jax.Array, jax.Array]:
     """6x6 stiffness in the material frame (Voigt, engineering shear strains), Pa."""
     E1, E2, n12, n23, G12 = c["E1"], c["E2"], c["nu12"], c["nu23"], c["G12"]
     G23 = E2 / (2 * (1 + n23))
@@ -57,7 +60,7 @@ def voigt_stiffness(c):
     return jnp.linalg.inv(S), S
 
 
-def fibre_frame(c):
+def fibre_frame(c: Constants) -> jax.Array:
     """3x3 rotation whose columns are the material axes (fibre first) in the reference frame."""
     th, ph = c["fibre_theta"], c["fibre_phi"]
     a1 = jnp.stack([jnp.cos(th) * jnp.cos(ph), jnp.sin(th) * jnp.cos(ph), jnp.sin(ph)])
@@ -65,7 +68,7 @@ def fibre_frame(c):
     return jnp.stack([a1, a2, jnp.cross(a1, a2)], axis=1)
 
 
-def stiffness_tensor(c, dim):
+def stiffness_tensor(c: Constants, dim: int) -> jax.Array:
     """C_ijkl in the reference frame, restricted to the first `dim` axes. (d, d, d, d) Pa."""
     Cv, _ = voigt_stiffness(c)
     C = Cv[_VOIGT_INDEX[:, :, None, None], _VOIGT_INDEX[None, None, :, :]]  # one gather: C_abef = Cv[V(ab), V(ef)]
@@ -74,7 +77,7 @@ def stiffness_tensor(c, dim):
     return C[:dim, :dim, :dim, :dim]
 
 
-def polar_rotation(F):
+def polar_rotation(F: jax.Array) -> jax.Array:
     """R of the polar decomposition F = R U. (N, d, d)"""
     d = F.shape[-1]
     if d == 1:
@@ -89,7 +92,7 @@ def polar_rotation(F):
     return R
 
 
-def update(c, F, stress, L, dt):
+def update(c: Constants, F: jax.Array, stress: jax.Array, L: jax.Array, dt: ArrayLike) -> tuple[jax.Array, jax.Array]:
     d = L.shape[-1]
     C = stiffness_tensor(c, d)
     F_new = jnp.matmul(jnp.eye(d, dtype=F.dtype) + dt * L, F)
@@ -100,7 +103,7 @@ def update(c, F, stress, L, dt):
     return F_new, R1 @ s_hat @ RT(R1)
 
 
-def wave_speed(c, rho, e, dim):
+def wave_speed(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """Upper bound of the longitudinal speed: sqrt(lambda_max(Mandel stiffness) / rho), m/s (no
     gradient: it only sets the CFL step)."""
     Cv, _ = voigt_stiffness(jax.lax.stop_gradient(c))
@@ -109,7 +112,7 @@ def wave_speed(c, rho, e, dim):
     return jnp.sqrt(jnp.linalg.eigvalsh(M)[-1] / rho)
 
 
-def bulk_modulus(c, rho, e, dim):
+def bulk_modulus(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """Reuss bulk modulus 1 / sum_ij S_ij (i, j normal components), Pa."""
     _, S = voigt_stiffness(c)
     return jnp.ones_like(rho) / jnp.sum(S[:3, :3])

@@ -11,10 +11,16 @@ Shapes: F, stress, L are (N, d, d); constants are scalars (or broadcastable); SI
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
+
+from jaxmpm.materials.kind import Constants, MatPoint
 
 
-def lame(c, dim):
+def lame(c: Constants, dim: int) -> tuple[jax.Array, jax.Array]:
     """Lame constants (lambda, mu) in Pa from E, nu; in 1D (lambda, mu) = (0, E / 2)."""
     E, nu = c["E"], c["nu"]
     if dim == 1:
@@ -30,13 +36,13 @@ def _trace(A):
     return jnp.trace(A, axis1=-2, axis2=-1)
 
 
-def update_F(F, L, dt):
+def update_F(F: jax.Array, L: jax.Array, dt: ArrayLike) -> jax.Array:
     """F_{n+1} = (I + dt L) F_n (deformation gradient, forward update)."""
     eye = jnp.eye(F.shape[-1], dtype=F.dtype)
     return jnp.matmul(eye + dt * L, F)
 
 
-def linear_elastic_stress(c, F):
+def linear_elastic_stress(c: Constants, F: jax.Array) -> jax.Array:
     """sigma = lambda tr(eps) I + 2 mu eps, eps = sym(F) - I (small strain)."""
     d = F.shape[-1]
     lam, mu = lame(c, d)
@@ -45,13 +51,15 @@ def linear_elastic_stress(c, F):
     return lam * _trace(eps)[..., None, None] * eye + 2 * mu * eps
 
 
-def linear_elastic_update(c, F, stress, L, dt):
+def linear_elastic_update(
+    c: Constants, F: jax.Array, stress: jax.Array, L: jax.Array, dt: ArrayLike
+) -> tuple[jax.Array, jax.Array]:
     """F_{n+1} = (I + dt L) F_n and sigma from it (small strain; not objective)."""
     F = update_F(F, L, dt)
     return F, linear_elastic_stress(c, F)
 
 
-def linear_elastic_energy(c, F):
+def linear_elastic_energy(c: Constants, F: jax.Array) -> jax.Array:
     """W = lambda/2 tr(eps)^2 + mu eps:eps per reference volume (J/m^3)."""
     d = F.shape[-1]
     lam, mu = lame(c, d)
@@ -59,7 +67,9 @@ def linear_elastic_energy(c, F):
     return 0.5 * lam * _trace(eps) ** 2 + mu * jnp.sum(eps * eps, axis=(-1, -2))
 
 
-def hypoelastic_update(c, F, stress, L, dt):
+def hypoelastic_update(
+    c: Constants, F: jax.Array, stress: jax.Array, L: jax.Array, dt: ArrayLike
+) -> tuple[jax.Array, jax.Array]:
     """Jaumann rate: d sigma/dt = lambda tr(D) I + 2 mu D + W sigma - sigma W."""
     d = F.shape[-1]
     lam, mu = lame(c, d)
@@ -70,7 +80,9 @@ def hypoelastic_update(c, F, stress, L, dt):
     return update_F(F, L, dt), stress + dt * rate
 
 
-def linear_fluid_update(c, F, stress, L, dt, rho_new=None):
+def linear_fluid_update(
+    c: Constants, F: jax.Array, stress: jax.Array, L: jax.Array, dt: ArrayLike, rho_new: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array]:
     """p = -K (J - 1), sigma = -p I. J = rho0 / rho_new, the particle's volume ratio after the step
     (the volume the grid forces act on), with F = J^(1/d) I: a fluid keeps no shear. rho_new None:
     J = det F of the forward update F = (I + dt L) F, which drifts from the volume ratio where L
@@ -88,30 +100,37 @@ def linear_fluid_update(c, F, stress, L, dt, rho_new=None):
     return F, (c["K"] * (J - 1))[..., None, None] * eye
 
 
-def solid_wave_speed(c, rho, e, dim):
+def solid_wave_speed(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """Longitudinal speed sqrt((lambda + 2 mu) / rho); 1D: sqrt(E / rho)."""
     lam, mu = lame(c, dim)
     return jnp.sqrt((lam + 2 * mu) / rho)
 
 
-def fluid_wave_speed(c, rho, e, dim):
+def fluid_wave_speed(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """sqrt(K / rho), m/s."""
     return jnp.sqrt(c["K"] / rho)
 
 
-def solid_bulk_modulus(c, rho, e, dim):
+def solid_bulk_modulus(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """K = E / (3 (1 - 2 nu)); in 1D the bar modulus E (the only volumetric stiffness there)."""
     if dim == 1:
         return c["E"] * jnp.ones_like(rho)
     return c["E"] / (3 * (1 - 2 * c["nu"])) * jnp.ones_like(rho)
 
 
-def fluid_bulk_modulus(c, rho, e, dim):
+def fluid_bulk_modulus(c: Constants, rho: jax.Array, e: jax.Array, dim: int) -> jax.Array:
     """K, Pa."""
     return c["K"] * jnp.ones_like(rho)
 
 
-def total_stress_energy(mp, sig, p, D, work, alpha_of):
+def total_stress_energy(
+    mp: MatPoint,
+    sig: jax.Array,
+    p: jax.Array,
+    D: jax.Array,
+    work: jax.Array,
+    alpha_of: Callable[[jax.Array], jax.Array] | None,
+) -> jax.Array:
     """Specific internal energy (N,) J/kg after a total-stress update to `sig` (N, d, d) with pressure
     p = -tr(sig) / d: the work of the midpoint stress the grid sees over the step, de = work *
     sigma_f : D, with the closure's alpha p (E8) where `alpha_of` is given."""

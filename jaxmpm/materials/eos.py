@@ -24,7 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxmpm.materials.kind import ANY, INF, NONNEG, POS, Part
+from jaxmpm.materials.kind import ANY, INF, NONNEG, POS, Constants, Part
 
 
 def _ideal_gas(c, rho):
@@ -79,12 +79,12 @@ EOS = {
 }
 
 
-def eos_coefficients(eos, c, rho):
+def eos_coefficients(eos: str, c: Constants, rho: jax.Array) -> tuple[jax.Array, jax.Array]:
     """(A, B) of p = A + B e at density rho."""
     return EOS[eos].fn(c, rho)
 
 
-def bulk_sound_speed2(eos, c, rho, e):
+def bulk_sound_speed2(eos: str, c: Constants, rho: jax.Array, e: jax.Array) -> jax.Array:
     """c_B^2 = dp/drho|_e + p / rho^2 dp/de (isentropic), floored at 1e-6 of its value at rest."""
     (A, B), (dA, dB) = jax.jvp(lambda r: eos_coefficients(eos, c, r), (rho,), (jnp.ones_like(rho),))
     p = A + B * e

@@ -11,10 +11,11 @@ Failure (damage in [0, 1], failed at 1; failed: s = 0 and p >= 0):
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from jaxmpm.materials.invariants import equivalent_stress, max_principal_stress
-from jaxmpm.materials.kind import ANY, POS, Part
+from jaxmpm.materials.kind import ANY, POS, Constants, Part
 from jaxmpm.materials.strength import THERMAL, homologous_temperature
 
 FAILURE = {
@@ -34,7 +35,17 @@ FAILURE = {
 }
 
 
-def failure_increment(kind, c, damage, eps_new, dl, epsdot, e, s, P):
+def failure_increment(
+    kind: str,
+    c: Constants,
+    damage: jax.Array,
+    eps_new: jax.Array,
+    dl: jax.Array,
+    epsdot: jax.Array,
+    e: jax.Array,
+    s: jax.Array,
+    P: jax.Array,
+) -> jax.Array:
     """New damage (N,) after this step's plastic strain increment dl and trial stress s - P I."""
     if kind == "spall":
         return jnp.where(max_principal_stress(s, P) > c["sigma_spall"], 1.0, damage)

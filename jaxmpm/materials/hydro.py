@@ -15,31 +15,63 @@ import jax.numpy as jnp
 
 from jaxmpm.materials.eos import (
     EOS as EOS,
+)
+from jaxmpm.materials.eos import (
     bulk_sound_speed2 as bulk_sound_speed2,
+)
+from jaxmpm.materials.eos import (
     eos_coefficients as eos_coefficients,
 )
-from jaxmpm.materials.failure import FAILURE as FAILURE, failure_increment as failure_increment
+from jaxmpm.materials.failure import FAILURE as FAILURE
+from jaxmpm.materials.failure import failure_increment as failure_increment
 from jaxmpm.materials.invariants import (
     deviator_norm2 as deviator_norm2,
+)
+from jaxmpm.materials.invariants import (
     equivalent_rate as equivalent_rate,
+)
+from jaxmpm.materials.invariants import (
     equivalent_stress as equivalent_stress,
+)
+from jaxmpm.materials.invariants import (
     largest_eigenvalue_2x2 as largest_eigenvalue_2x2,
+)
+from jaxmpm.materials.invariants import (
     largest_eigenvalue_3x3 as largest_eigenvalue_3x3,
+)
+from jaxmpm.materials.invariants import (
     max_principal_stress as max_principal_stress,
+)
+from jaxmpm.materials.invariants import (
     trace,
 )
-from jaxmpm.materials.kind import ANY as ANY, INF as INF, NONNEG as NONNEG, POS as POS, Model, Part as Part
+from jaxmpm.materials.kind import ANY as ANY
+from jaxmpm.materials.kind import INF as INF
+from jaxmpm.materials.kind import NONNEG as NONNEG
+from jaxmpm.materials.kind import POS as POS
+from jaxmpm.materials.kind import Model
+from jaxmpm.materials.kind import Part as Part
 from jaxmpm.materials.strength import (
     EPS_P_RAMP as EPS_P_RAMP,
+)
+from jaxmpm.materials.strength import (
     STRENGTH as STRENGTH,
+)
+from jaxmpm.materials.strength import (
     homologous_temperature as homologous_temperature,
+)
+from jaxmpm.materials.strength import (
     radial_return,
+)
+from jaxmpm.materials.strength import (
     rate_factor as rate_factor,
+)
+from jaxmpm.materials.strength import (
     thermal_softening as thermal_softening,
 )
 
 
-def compose(eos, strength, failure):
+def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
     """The Model of 'eos[+strength][+failure...]'."""
     constants = dict(EOS[eos].constants)
     for part in ([STRENGTH[strength]] if strength else []) + [FAILURE[f] for f in failure]:

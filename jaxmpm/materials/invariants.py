@@ -12,12 +12,12 @@ import jax
 import jax.numpy as jnp
 
 
-def trace(A):
+def trace(A: jax.Array) -> jax.Array:
     """The trace of each matrix of A (..., d, d)."""
     return jnp.trace(A, axis1=-2, axis2=-1)
 
 
-def deviator_norm2(s):
+def deviator_norm2(s: jax.Array) -> jax.Array:
     """s:s of the full 3D deviator from its in-plane part (plane strain / uniaxial strain). (N,)"""
     d = s.shape[-1]
     ss = jnp.sum(s * s, axis=(-1, -2))
@@ -28,12 +28,12 @@ def _safe_sqrt(x, tiny=1e-30):
     return jnp.sqrt(jnp.maximum(x, tiny))
 
 
-def equivalent_stress(s):
+def equivalent_stress(s: jax.Array) -> jax.Array:
     """von Mises stress sqrt(3/2 s:s), Pa. (N,)"""
     return _safe_sqrt(1.5 * deviator_norm2(s))
 
 
-def equivalent_rate(D):
+def equivalent_rate(D: jax.Array) -> jax.Array:
     """sqrt(2/3 D':D') with D' the 3D deviator of D (out-of-plane D = 0). (N,) 1/s"""
     d = D.shape[-1]
     tr = trace(D)
@@ -42,7 +42,7 @@ def equivalent_rate(D):
     return _safe_sqrt(2.0 / 3.0 * dd)
 
 
-def max_principal_stress(s, P):
+def max_principal_stress(s: jax.Array, P: jax.Array) -> jax.Array:
     """Largest principal value of the full 3D stress s - P I (no gradient: it only switches). (N,)"""
     s, P = jax.lax.stop_gradient(s), jax.lax.stop_gradient(P)
     d = s.shape[-1]
@@ -54,14 +54,14 @@ def max_principal_stress(s, P):
     return top - P
 
 
-def largest_eigenvalue_2x2(s):
+def largest_eigenvalue_2x2(s: jax.Array) -> jax.Array:
     """Largest eigenvalue of symmetric (N, 2, 2) matrices, in closed form. (N,)"""
     m = 0.5 * (s[:, 0, 0] + s[:, 1, 1])
     h = 0.5 * (s[:, 0, 0] - s[:, 1, 1])
     return m + jnp.sqrt(h * h + s[:, 0, 1] * s[:, 1, 0])
 
 
-def largest_eigenvalue_3x3(s):
+def largest_eigenvalue_3x3(s: jax.Array) -> jax.Array:
     """Largest eigenvalue of symmetric (N, 3, 3) matrices, in closed form (Smith, Commun. ACM 4
     (1961) 168: q = tr/3, p = sqrt(|s - qI|^2 / 6), lambda = q + 2 p cos(acos(det((s - qI)/p)/2)/3)).
     Closed form rather than LAPACK: no library call inside vmapped scans, and exact for p = 0. (N,)"""

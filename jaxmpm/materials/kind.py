@@ -1,17 +1,42 @@
 """Model: what a constitutive model kind provides (its constants' ranges, stress update, wave
 speed, bulk modulus, state at rest). The kinds themselves are registered in `models`. Part: one
-part of a hydrocode composition (`hydro`), and the shorthands of the constants' allowed ranges."""
+part of a hydrocode composition (`hydro`), and the shorthands of the constants' allowed ranges.
+MatPoint: the particles' material state that a stress update takes and returns; Constants: a
+model's constants by name."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Mapping, NamedTuple
+
+import jax
+from jax.typing import ArrayLike
 
 INF = math.inf
 POS = (0.0, INF, False, False)  # > 0
 NONNEG = (0.0, INF, True, False)  # >= 0
 ANY = (-INF, INF, False, False)
+
+# a model's constants by name (SI): numbers, or arrays of one value per particle under jax.vmap
+Constants = Mapping[str, ArrayLike]
+
+
+class MatPoint(NamedTuple):
+    """Per-particle material state (N leading axis): F (N,d,d), stress (N,d,d) Pa, pressure (N,) Pa
+    (the isotropic pressure the stress holds, including artificial viscosity: for the hydrocode
+    models stress = s - pressure I with s the in-plane part of the 3D deviator), energy (N,) J/kg,
+    eps_ps (N,) equivalent plastic strain, damage (N,) in [0, 1] (1: failed), rho (N,) kg/m^3 at
+    the start of the step, rho_new (N,) after it."""
+
+    F: jax.Array
+    stress: jax.Array
+    pressure: jax.Array
+    energy: jax.Array
+    eps_ps: jax.Array
+    damage: jax.Array
+    rho: jax.Array
+    rho_new: jax.Array
 
 
 @dataclass(frozen=True)

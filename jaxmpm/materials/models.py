@@ -26,30 +26,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
 
 import jax.numpy as jnp
 
 from jaxmpm.materials import anisotropic, elastic, hydro, viscoelastic
+from jaxmpm.materials.kind import MatPoint as MatPoint
 from jaxmpm.materials.kind import Model
-
-
-class MatPoint(NamedTuple):
-    """Per-particle material state (N leading axis): F (N,d,d), stress (N,d,d) Pa, pressure (N,) Pa
-    (the isotropic pressure the stress holds, including artificial viscosity: for the hydrocode
-    models stress = s - pressure I with s the in-plane part of the 3D deviator), energy (N,) J/kg,
-    eps_ps (N,) equivalent plastic strain, damage (N,) in [0, 1] (1: failed), rho (N,) kg/m^3 at
-    the start of the step, rho_new (N,) after it."""
-
-    F: object
-    stress: object
-    pressure: object
-    energy: object
-    eps_ps: object
-    damage: object
-    rho: object
-    rho_new: object
-
 
 _POS = (0.0, math.inf, False, False)
 _SOLID = {"rho0": _POS + ("kg/m^3",), "E": _POS + ("Pa",), "nu": (-1.0, 0.5, False, False, "")}

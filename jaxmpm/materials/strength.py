@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from jaxmpm.materials.invariants import equivalent_stress
-from jaxmpm.materials.kind import NONNEG, POS, Part
+from jaxmpm.materials.kind import NONNEG, POS, Constants, Part
 
 _G = {"G": POS + ("Pa",)}
 _JC = {
@@ -53,16 +54,16 @@ def _safe_pow(x, n):
     return jnp.where(pos, jnp.where(pos, x, 1.0) ** n, 0.0)
 
 
-def homologous_temperature(c, e):
+def homologous_temperature(c: Constants, e: jax.Array) -> jax.Array:
     """T* = (T - T_room) / (T_melt - T_room) in [0, 1], adiabatic T = T_room + e / cp."""
     return jnp.clip(e / c["cp"] / (c["T_melt"] - c["T_room"]), 0.0, 1.0)
 
 
-def rate_factor(c, epsdot):
+def rate_factor(c: Constants, epsdot: jax.Array) -> jax.Array:
     return 1 + c["C"] * jnp.log(jnp.maximum(epsdot / c["epsdot0"], 1.0))
 
 
-def thermal_softening(strength, c, e):
+def thermal_softening(strength: str, c: Constants, e: jax.Array) -> jax.Array:
     """Johnson-Cook's thermal factor 1 - T*^m (N,) of the specific internal energy e (J/kg) for
     'johnson_cook_thermal*' strengths, else 1."""
     if strength.removesuffix("_plastic_rate") == "johnson_cook_thermal":
@@ -73,7 +74,9 @@ def thermal_softening(strength, c, e):
 EPS_P_RAMP = 1e-12  # plastic strain below which Johnson-Cook's hardening is linear in eps_p (`flow_stress`)
 
 
-def flow_stress(strength, c, eps, epsdot, softening, p):
+def flow_stress(
+    strength: str, c: Constants, eps: jax.Array, epsdot: jax.Array, softening: jax.Array, p: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """Yield stress Y(eps_p) (N,) Pa and its derivative dY/deps_p; softening: `thermal_softening`."""
     strength = strength.removesuffix("_plastic_rate")
     if strength == "von_mises":
@@ -151,7 +154,17 @@ def _bracketed_newton(residual, iterations):
     return solve
 
 
-def radial_return(strength, c, s_tr, eps, epsdot, e, p, dt=None, iterations=8):
+def radial_return(
+    strength: str,
+    c: Constants,
+    s_tr: jax.Array,
+    eps: jax.Array,
+    epsdot: jax.Array,
+    e: jax.Array,
+    p: jax.Array,
+    dt: ArrayLike | None = None,
+    iterations: int = 8,
+) -> tuple[jax.Array, jax.Array]:
     """Return the trial deviator onto Y(eps_p + dlambda): (s, dlambda). Newton on
     f(dl) = sigma_eq_trial - 3 G dl - Y(eps_p + dl), started at the perfectly plastic step. With a
     *_plastic_rate strength the rate in Y is dl / dt (the step's equivalent plastic strain rate; the

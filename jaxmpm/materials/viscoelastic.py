@@ -12,18 +12,34 @@ time tau_failed (s) (`brittle_maxwell_update`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from jaxmpm.materials.elastic import hypoelastic_update, total_stress_energy
+from jaxmpm.materials.kind import Constants, MatPoint
 
 
-def maxwell_update(c, F, stress, L, dt):
+def maxwell_update(
+    c: Constants, F: jax.Array, stress: jax.Array, L: jax.Array, dt: ArrayLike
+) -> tuple[jax.Array, jax.Array]:
     """Relax the stress by exp(-dt / tau), then add the hypoelastic (Jaumann) increment."""
     relaxed = stress * jnp.exp(-dt / c["tau"])
     return hypoelastic_update(c, F, relaxed, L, dt)
 
 
-def brittle_maxwell_update(c, mp, L, D, dt, work, q, alpha_of):
+def brittle_maxwell_update(
+    c: Constants,
+    mp: MatPoint,
+    L: jax.Array,
+    D: jax.Array,
+    dt: ArrayLike,
+    work: jax.Array,
+    q: jax.Array | None,
+    alpha_of: Callable[[jax.Array], jax.Array] | None,
+) -> MatPoint:
     """Maxwell model with a damage-dependent relaxation time, for brittle material (the seed's
     brittle Taylor impact). Intact (damage 0): `maxwell_update` with tau. A particle fails (damage
     1, for good) on the step its intact update would give a largest principal stress above the

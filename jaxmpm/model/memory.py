@@ -5,13 +5,13 @@ each count is a lower bound of what the computation holds."""
 from __future__ import annotations
 
 import math
-
-import numpy as np
 from typing import TYPE_CHECKING
 
-from jaxmpm.model.sampling import lattice_cells
+import numpy as np
+
 from jaxmpm.model.geometry import Grid
 from jaxmpm.model.parts import Phase
+from jaxmpm.model.sampling import lattice_cells
 
 if TYPE_CHECKING:  # for annotations only: scene.py imports this module
     from jaxmpm.model.scene import Scene

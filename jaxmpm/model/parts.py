@@ -12,9 +12,17 @@ from typing import Any
 from jaxmpm.materials.models import model_of, split_model
 from jaxmpm.model.geometry import (
     GEOMETRIES,
+)
+from jaxmpm.model.geometry import (
     as_float as _float,
+)
+from jaxmpm.model.geometry import (
     as_floats as _floats,
+)
+from jaxmpm.model.geometry import (
     fail as _fail,
+)
+from jaxmpm.model.geometry import (
     is_integer as _is_integer,
 )
 

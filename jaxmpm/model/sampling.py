@@ -4,9 +4,10 @@ box, the positions it keeps, and the checks a Scene runs on them when it is buil
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
-from typing import TYPE_CHECKING
+
 from jaxmpm.model.geometry import Grid
 from jaxmpm.model.parts import Phase
 

@@ -17,33 +17,60 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from jaxmpm.materials import Material, resolve_material
+
 # the geometry and the scene's parts live in jaxmpm.model.geometry and jaxmpm.model.parts; their
 # names stay importable from here
 from jaxmpm.model.geometry import (
     GEOMETRIES as GEOMETRIES,
+)
+from jaxmpm.model.geometry import (
     Box as Box,
+)
+from jaxmpm.model.geometry import (
     Difference as Difference,
+)
+from jaxmpm.model.geometry import (
     Grid as Grid,
+)
+from jaxmpm.model.geometry import (
     Sphere as Sphere,
+)
+from jaxmpm.model.geometry import (
     geometry_from_dict as geometry_from_dict,
 )
+from jaxmpm.model.memory import check_scene_memory
 from jaxmpm.model.parts import (
     AXES as AXES,
+)
+from jaxmpm.model.parts import (
     BOUNDARIES as BOUNDARIES,
+)
+from jaxmpm.model.parts import (
     CONTINUITY as CONTINUITY,
+)
+from jaxmpm.model.parts import (
     DENSITY_DIFFUSION,
-    FACE_NAMES as FACE_NAMES,
     FLUID_VISCOSITY,
-    FRAGMENTATION as FRAGMENTATION,
-    MAX_PPC as MAX_PPC,
-    SHAPES as SHAPES,
-    TRANSFERS as TRANSFERS,
     Boundary,
     Phase,
     is_fluid,
 )
-from jaxmpm.materials import Material, resolve_material
-from jaxmpm.model.memory import check_scene_memory
+from jaxmpm.model.parts import (
+    FACE_NAMES as FACE_NAMES,
+)
+from jaxmpm.model.parts import (
+    FRAGMENTATION as FRAGMENTATION,
+)
+from jaxmpm.model.parts import (
+    MAX_PPC as MAX_PPC,
+)
+from jaxmpm.model.parts import (
+    SHAPES as SHAPES,
+)
+from jaxmpm.model.parts import (
+    TRANSFERS as TRANSFERS,
+)
 from jaxmpm.model.sampling import check_sampling
 from jaxmpm.model.scene_checks import check_scene_fields
 

@@ -22,11 +22,11 @@ import contextlib
 import contextvars
 import functools
 import os
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import jax
 import numpy as np
-from collections.abc import Callable, Iterator
-from typing import Any
 
 CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}  # empty: no YNNPACK fusions
 # Which forms code traced now takes. A JAX user context: JAX keys its caches of traces, lowerings

@@ -27,13 +27,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
+from jaxmpm.model.geometry import Grid
+from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import particle_fields
 from jaxmpm.numerics.compile import bilinear_contraction
 from jaxmpm.numerics.forms import transfer_form
 from jaxmpm.numerics.safe import safe_div
 from jaxmpm.numerics.shapes import stencil_offsets
-from jaxmpm.model.geometry import Grid
-from jaxmpm.model.scene import Scene
 
 # 1D integrals on the unit cell of phi_0 = 1 - s, phi_1 = s.
 _P2 = np.array([[1 / 3, 1 / 6], [1 / 6, 1 / 3]])

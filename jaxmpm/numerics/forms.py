@@ -22,9 +22,9 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
+from collections.abc import Iterator
 
 import jax
-from collections.abc import Iterator
 
 ENV = "JAXMPM_TRANSFER_FORM"
 FORMS = ("cpu", "gpu")

@@ -11,12 +11,13 @@ Shapes: x (N, d) m; node (N, S) flat node index; w (N, S); dw (N, S, d) 1/m; S =
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from collections.abc import Sequence
+
 from jaxmpm.model.geometry import Grid
 from jaxmpm.model.scene import Scene
 

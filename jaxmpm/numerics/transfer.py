@@ -29,20 +29,18 @@ faster for the DDMP steps (one field 1.36x slower, three fields and the debris c
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from collections.abc import Callable, Sequence
-from typing import Any
 from jax.typing import ArrayLike, DTypeLike
 
-from jaxmpm.numerics.compile import bilinear_contraction
-from jaxmpm.numerics.shapes import TENSOR_SHAPES, node_strides
-from jaxmpm.numerics.shapes import stencil_offsets
-from jaxmpm.numerics.shapes import Stencil
 from jaxmpm.model.geometry import Grid
+from jaxmpm.numerics.compile import bilinear_contraction
+from jaxmpm.numerics.shapes import TENSOR_SHAPES, Stencil, node_strides, stencil_offsets
 
 
 def _rows(stencils, field, n_nodes):

@@ -10,16 +10,17 @@ Shapes: N particles; SI units.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import jax
 import jax.numpy as jnp
 import numpy as np
-from collections.abc import Callable
-import jax
 from jax.typing import ArrayLike
 
-from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, fails, pressure
 from jaxmpm.model.params import Params
 from jaxmpm.model.state import State
 from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, fails, pressure
 
 
 def alpha(gate: ArrayLike, eps_ps: jax.Array, c_h: ArrayLike) -> jax.Array:

@@ -15,6 +15,8 @@ import numpy as np
 from jax.typing import ArrayLike
 
 from jaxmpm.materials.models import MatPoint
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
 from jaxmpm.stages.closure import (
     alpha_of_strain,
     fragmentation_gate,
@@ -23,10 +25,8 @@ from jaxmpm.stages.closure import (
     tensile_fragment_fraction,
     tension_mask,
 )
-from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, per_model, pressure
-from jaxmpm.model.params import Params
-from jaxmpm.model.state import State
 from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed, per_model, pressure
 
 
 def artificial_viscosity(layout: Layout, params: Params, state: State, rho_new: jax.Array, trD: jax.Array) -> jax.Array:

@@ -4,19 +4,19 @@ volume toward its phase's local average."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-import jax
 
 from jaxmpm.materials.models import split_model
+from jaxmpm.model.params import Params
 from jaxmpm.model.scene import is_fluid
+from jaxmpm.model.state import State
+from jaxmpm.numerics.shapes import Stencil
 from jaxmpm.numerics.transfer import interpolate, scatter
 from jaxmpm.stages import fields
-from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
-from jaxmpm.model.params import Params
-from jaxmpm.model.state import State
 from jaxmpm.stages.layout import Layout
-from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 
 BAROTROPIC = ("linear_fluid", "tait", "linear")  # fluid models, and equations of state, whose p depends on rho alone
 

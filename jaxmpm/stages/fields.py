@@ -20,8 +20,8 @@ Shapes: K fields, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import jax
+import jax.numpy as jnp
 from jax.typing import ArrayLike
 
 from jaxmpm.numerics.safe import safe_div

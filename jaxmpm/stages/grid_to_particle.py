@@ -9,26 +9,22 @@ Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 
 from __future__ import annotations
 
-from jaxmpm.model.params import Params
-from jaxmpm.model.state import State
-from jaxmpm.numerics.shapes import Stencil
-from jaxmpm.stages.layout import Layout
-from jaxmpm.stages.nodal import NodalSums
-
 from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
 from jaxmpm.numerics import ddmp
-from jaxmpm.numerics.shapes import ddmp_beta, stencil
+from jaxmpm.numerics.shapes import Stencil, ddmp_beta, stencil
 from jaxmpm.numerics.transfer import gather, interpolate, scatter, stencil_outer
 from jaxmpm.stages import fields
 from jaxmpm.stages.density_diffusion import density_diffusion_rate, diffused_particles
-from jaxmpm.stages.layout import apply_walls
+from jaxmpm.stages.layout import Layout, apply_walls
 from jaxmpm.stages.multifield import ambient_pressure_by_phase, exchange_force
-from jaxmpm.stages.nodal import GridUpdate, ddmp_operators, grid_shape, particle_radius, scatter_named
+from jaxmpm.stages.nodal import GridUpdate, NodalSums, ddmp_operators, grid_shape, particle_radius, scatter_named
 
 
 def grid_to_particle(

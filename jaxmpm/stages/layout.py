@@ -4,16 +4,15 @@ once per step function by `Layout.of(scene)`; and the walls' velocity mask it ho
 from __future__ import annotations
 
 import functools
-from typing import Any
-
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmpm.model.state import phase_slices
 from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import phase_slices
 
 
 @dataclass(frozen=True)

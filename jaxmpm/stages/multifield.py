@@ -9,23 +9,23 @@ jaxmpm.stages.layout.Layout. SI units.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 import numpy as np
-from collections.abc import Callable
 from jax.typing import ArrayLike, DTypeLike
 
-from jaxmpm.numerics import ddmp
-from jaxmpm.stages import fields
-from jaxmpm.stages.closure import grid_pressure
-from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
-from jaxmpm.stages.nodal import node_volume, particle_radius, pressure_parts, scatter_named
-from jaxmpm.numerics.transfer import interpolate
 from jaxmpm.model.params import Params
 from jaxmpm.model.state import State
-from jaxmpm.stages.layout import Layout
+from jaxmpm.numerics import ddmp
 from jaxmpm.numerics.shapes import Stencil
-from jaxmpm.stages.nodal import NodalSums
+from jaxmpm.numerics.transfer import interpolate
+from jaxmpm.stages import fields
+from jaxmpm.stages.closure import grid_pressure
+from jaxmpm.stages.layout import Layout
+from jaxmpm.stages.nodal import NodalSums, node_volume, particle_radius, pressure_parts, scatter_named
+from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 
 
 def phase_pressure_and_compressibility(layout: Layout, params: Params, state: State) -> tuple[jax.Array, jax.Array]:

@@ -8,19 +8,17 @@ jaxmpm.stages.layout.Layout. SI units.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
-
-import math
-
 import jax.numpy as jnp
 from jax.typing import DTypeLike
 
-from jaxmpm.numerics import ddmp
-from jaxmpm.numerics.transfer import cell_sum, scatter, stencil_apply
 from jaxmpm.model.state import State
+from jaxmpm.numerics import ddmp
 from jaxmpm.numerics.shapes import Stencil
+from jaxmpm.numerics.transfer import cell_sum, scatter, stencil_apply
 from jaxmpm.stages.layout import Layout
 
 

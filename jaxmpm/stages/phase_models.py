@@ -7,11 +7,12 @@ Shapes: N particles; SI units.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
-from collections.abc import Callable
-from typing import Any
 
 from jaxmpm.materials.models import MODELS, model_of, split_model
 from jaxmpm.model.params import Params
