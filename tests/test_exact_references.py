@@ -313,7 +313,7 @@ def test_stiffened_gas_water_pulse_travels_at_its_sound_speed():
 
 
 def test_tait_water_pressure_and_sound_speed_match_the_closed_forms():
-    """PHYSICS section 3 (EOS; 'Tait for water', no E label, formula of hydro.py's docstring): the
+    """PHYSICS section 3 (EOS; 'Tait for water', no E label, formula of materials/eos.py's docstring): the
     library's water with model 'tait', p = B ((rho / rho0)^n - 1) + p0 (Cole 1948: n = 7.15,
     B = 304.6 MPa), independent of e; by hand at rest (p0), compressed 3% and expanded 1%; sound
     speed c^2 = dp/drho = n B rho^(n-1) / rho0^n, at rest c0^2 = n B / rho0 (1476 m/s); bulk modulus
@@ -347,14 +347,14 @@ def test_tait_water_pressure_and_sound_speed_match_the_closed_forms():
 
 # ------------------------------------------------------------------ concrete: Drucker-Prager
 def yield_stress(c, p):
-    """Y(p) = min(max(Y0 + dY_dp p, 0), Ymax): hydro.py's drucker_prager, by hand."""
+    """Y(p) = min(max(Y0 + dY_dp p, 0), Ymax): materials/strength.py's drucker_prager, by hand."""
     return min(max(c["Y0"] + c["dY_dp"] * p, 0.0), c["Ymax"])
 
 
 @pytest.mark.parametrize("pressure, branch", [(50e6, "slope"), (200e6, "cap"), (-5e6, "tension cut-off")])
 def test_drucker_prager_concrete_caps_von_mises_stress_at_yield_of_pressure(pressure, branch):
     """The library's concrete (linear EOS + drucker_prager + spall; PHYSICS section 3 names no
-    pressure-dependent strength, so the reference is hydro.py's docstring Y = clip(Y0 + dY_dp p, 0,
+    pressure-dependent strength, so the reference is materials/strength.py's docstring Y = clip(Y0 + dY_dp p, 0,
     Ymax), by hand). One point, single-point driver: an isotropic compression (or expansion) to
     J = 1 - p / K, which sets the pressure p = -K (J - 1) and leaves the deviator zero, then an
     isochoric triaxial path L = r diag(-2, 1, 1), which keeps p fixed. The von Mises stress must be
