@@ -5,44 +5,48 @@ All functions are pure and jit/vmap/grad-compatible; `summary` returns host floa
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from jaxmpm.materials.models import model_of
-from jaxmpm.model.state import particle_fields, phase_slices
+from jaxmpm.model.params import Params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, particle_fields, phase_slices
 from jaxmpm.numerics.ddmp import node_support
 from jaxmpm.numerics.shapes import linear_stencil
 from jaxmpm.numerics.transfer import scatter_weighted
 
 
-def total_mass(state):
+def total_mass(state: State) -> jax.Array:
     """kg (per unit depth in 2D, kg/m; per unit area in 1D; per radian in axisymmetric scenes)."""
     return jnp.sum(state.mass)
 
 
-def momentum(state):
+def momentum(state: State) -> jax.Array:
     """(d,) total linear momentum, kg m/s (per unit depth in 2D, kg/s; per unit area in 1D; per
     radian in axisymmetric scenes, where only its axial component z is conserved)."""
     return jnp.sum(state.mass[:, None] * state.v, axis=0)
 
 
-def kinetic_energy(state):
+def kinetic_energy(state: State) -> jax.Array:
     """J (per unit depth in 2D, J/m; per unit area in 1D; per radian in axisymmetric scenes)."""
     return 0.5 * jnp.sum(state.mass * jnp.sum(state.v**2, axis=-1))
 
 
-def internal_energy(state):
+def internal_energy(state: State) -> jax.Array:
     """sum_p m_p e_p, J (per unit depth, area or radian as `kinetic_energy`): the work done on the
     particles by their stress (strain energy, heat)."""
     return jnp.sum(state.mass * state.energy)
 
 
-def gravitational_energy(state, gravity):
+def gravitational_energy(state: State, gravity: ArrayLike) -> jax.Array:
     """- sum_p m_p g . x_p, J (per unit depth, area or radian as `kinetic_energy`; zero at the
     origin). gravity: (d,) m/s^2."""
     return -jnp.sum(state.mass * (state.x @ gravity))
 
 
-def strain_energy(scene, params, state):
+def strain_energy(scene: Scene, params: Params, state: State) -> jax.Array | float:
     """Elastic energy from F for phases whose model defines it (else from the energy integral), J."""
     total = 0.0
     for p, sl in zip(scene.phases, phase_slices(scene)):
@@ -55,7 +59,7 @@ def strain_energy(scene, params, state):
     return total
 
 
-def total_energy(scene, params, state):
+def total_energy(scene: Scene, params: Params, state: State) -> jax.Array:
     """Kinetic + internal (+ gravitational where the scene has gravity), J."""
     e = kinetic_energy(state) + internal_energy(state)
     if scene.gravity is not None:
@@ -63,7 +67,7 @@ def total_energy(scene, params, state):
     return e
 
 
-def per_phase(scene, state):
+def per_phase(scene: Scene, state: State) -> dict[str, dict[str, jax.Array]]:
     """{phase: {mass, momentum, kinetic, internal}} as arrays."""
     out = {}
     for p, sl in zip(scene.phases, phase_slices(scene)):
@@ -77,7 +81,7 @@ def per_phase(scene, state):
     return out
 
 
-def summary(scene, params, state) -> dict:
+def summary(scene: Scene, params: Params, state: State) -> dict:
     """Host-side floats: time, mass, momentum, kinetic, internal and total energy."""
     return {
         "t": float(state.t),
@@ -89,7 +93,7 @@ def summary(scene, params, state) -> dict:
     }
 
 
-def volume_fractions(scene, state):
+def volume_fractions(scene: Scene, state: State) -> tuple[jax.Array, jax.Array]:
     """Nodal volume fractions theta_nk = sum_{p in k} V_p S_np / V_n of every velocity field,
     (K, *nodes), and their sum Theta = sum_k theta_k, (*nodes,) (E7 asks Theta = 1 in a mixture)."""
     grid = scene.grid

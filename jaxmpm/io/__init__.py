@@ -42,12 +42,14 @@ from jaxmpm.io.schema import FIELDS, OPTIONAL, UNITS, check_scene, check_shapes,
 from jaxmpm.io.scenefile import parse_toml, scene_from_dict, scene_to_toml
 from jaxmpm.model.state import State, phase_slices
 from jaxmpm.version import __version__
+from jaxmpm.model.params import Params
+from jaxmpm.model.scene import Scene
 
 H5_SUFFIXES = (".h5", ".hdf5")
 
 
 # ----------------------------------------------------------------------------------- safe writing
-def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
+def estimate_bytes(scene: Scene, n_particles: int, n_times: int, itemsize: int) -> int:
     """Bytes that `write` needs for n_times outputs of n_particles (datasets x, v, x3, v3, volume,
     mass, F, stress, energy, eps_ps, pressure, damage, C where used), with 10% for metadata and the XDMF."""
     d = scene.dim
@@ -56,7 +58,7 @@ def estimate_bytes(scene, n_particles: int, n_times: int, itemsize: int) -> int:
     return int(1.1 * n_times * n_particles * per_particle * itemsize) + 65536
 
 
-def xdmf_path(path) -> Path:
+def xdmf_path(path: str | os.PathLike) -> Path:
     """The XDMF file written beside the HDF5 file `path` (same stem, suffix .xdmf)."""
     return Path(path).with_suffix(".xdmf")
 
@@ -110,7 +112,9 @@ def _pad3(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a, np.zeros(a.shape[:-1] + (3 - a.shape[-1],), a.dtype)], axis=-1)
 
 
-def write(path, scene, history: State, params=None, overwrite: bool = False) -> tuple[Path, Path]:
+def write(
+    path: str | os.PathLike, scene: Scene, history: State, params: Params | None = None, overwrite: bool = False
+) -> tuple[Path, Path]:
     """Write `history` (a State with a leading time axis, as from `jaxmpm.simulate`; or one State)
     to the HDF5 file `path` (.h5) and an XDMF index beside it. Returns (h5 path, xdmf path).
 
@@ -162,10 +166,10 @@ def write(path, scene, history: State, params=None, overwrite: bool = False) -> 
                     ds = f.create_dataset(f"params/{_key_path(kp)}", data=np.asarray(leaf))
                     ds.attrs["key"] = jax.tree_util.keystr(kp)
             for i, t in enumerate(data["t"]):
-                g = f.create_group(f"t{i:04d}")
-                g.attrs["time"] = t
+                group = f.create_group(f"t{i:04d}")
+                group.attrs["time"] = t
                 for phase, sl in zip(scene.phases, slices):
-                    pg = g.create_group(phase.name)
+                    pg = group.create_group(phase.name)
                     pg.attrs.update(
                         {
                             "material": phase.to_dict()["material"],
@@ -243,7 +247,7 @@ def _xdmf_text(h5_name: str, scene, data: dict, slices) -> str:
 
 
 # ----------------------------------------------------------------------------------- read
-def open_h5(path, what: str = "jaxmpm output file (written by jaxmpm.io.write)"):
+def open_h5(path: str | os.PathLike, what: str = "jaxmpm output file (written by jaxmpm.io.write)") -> h5py.File:
     """Open the HDF5 file `path` for reading: FileNotFoundError if it does not exist, ValueError
     naming the path if it is a directory or not a readable HDF5 file (text, truncated, ...)."""
     path = Path(path)
@@ -294,17 +298,17 @@ def _node(f, path, ref: str, kind=h5py.Dataset):
     return node
 
 
-def _time(f, path, g: str):
-    """The attribute `time` (s) of the output group /g, as stored; ValueError naming the file if
+def _time(f, path, group: str):
+    """The attribute `time` (s) of the output group /`group`, as stored; ValueError naming the file if
     it is missing or not a number."""
-    g = _node(f, path, f"/{g}", h5py.Group)
-    if "time" not in g.attrs:
+    group = _node(f, path, f"/{group}", h5py.Group)
+    if "time" not in group.attrs:
         raise ValueError(
-            f"{os.fspath(path)} has no attribute 'time' on {g.name}: it is not a complete jaxmpm output file"
+            f"{os.fspath(path)} has no attribute 'time' on {group.name}: it is not a complete jaxmpm output file"
         )
-    t = g.attrs["time"]
+    t = group.attrs["time"]
     if np.ndim(t) != 0 or np.asarray(t).dtype.kind not in "fiu":
-        raise ValueError(f"{os.fspath(path)}: {g.name} attribute time = {t!r} is invalid: allowed a number (s)")
+        raise ValueError(f"{os.fspath(path)}: {group.name} attribute time = {t!r} is invalid: allowed a number (s)")
     return t
 
 
@@ -315,7 +319,7 @@ def _scene_text(f, path) -> str:
         raise ValueError(f"{os.fspath(path)}:/scene is not TOML text ({e})") from None
 
 
-def read(path):
+def read(path: str | os.PathLike) -> tuple[Scene, State]:
     """Read a file written by `write`: returns (scene, history), history a State of numpy arrays
     with a leading time axis (t (n_times,) s; x (n_times, N, d) m; ...), phases in scene order.
     FileNotFoundError if `path` does not exist; ValueError naming the file and what is missing
@@ -329,24 +333,24 @@ def read(path):
         slices = phase_slices(scene)
         shapes = field_shapes(scene)
         groups = _times(f)
-        t = np.array([_time(f, path, g) for g in groups])
-        for g in groups:
+        t = np.array([_time(f, path, group) for group in groups])
+        for group in groups:
             for p in scene.phases:
-                _node(f, path, f"/{g}/{p.name}", h5py.Group)
+                _node(f, path, f"/{group}/{p.name}", h5py.Group)
         first = f[groups[0]][scene.phases[0].name]
         fields = {}
         for name in FIELDS + OPTIONAL:
             if name not in FIELDS and name not in first:
                 continue
             per_time = []
-            for g in groups:
+            for group in groups:
                 parts = []
                 for p, sl in zip(scene.phases, slices):
-                    ds = _node(f, path, f"/{g}/{p.name}/{name}")
+                    ds = _node(f, path, f"/{group}/{p.name}/{name}")
                     need = (sl.stop - sl.start,) + shapes[name][1:]
                     if ds.shape != need or ds.dtype.kind != "f":
                         raise ValueError(
-                            f"{where}:/{g}/{p.name}/{name} has shape {ds.shape} ({ds.dtype}): its scene "
+                            f"{where}:/{group}/{p.name}/{name} has shape {ds.shape} ({ds.dtype}): its scene "
                             f"needs {need} floating-point numbers"
                         )
                     parts.append(ds[()])
@@ -358,7 +362,7 @@ def read(path):
 
 
 # ----------------------------------------------------------------------------------- plots, summaries
-def summary(path) -> str:
+def summary(path: str | os.PathLike) -> str:
     """Text summary of a file written by `write`: scene, output times, phases with particle counts,
     total mass and kinetic energy at the first and last output. Errors as `read`."""
     where = os.fspath(path)
@@ -370,24 +374,26 @@ def summary(path) -> str:
             dim = int(a["dim"]) if "dim" in a else len(spec["grid"]["cells"])
         except (KeyError, TypeError, ValueError):
             raise ValueError(f"{where} has no dimension: neither an attribute 'dim' nor grid.cells in /scene") from None
-        times = [float(_time(f, path, g)) for g in groups]
+        times = [float(_time(f, path, group)) for group in groups]
         phases = str(a["phases"]).split(",") if "phases" in a else list(_node(f, path, f"/{groups[0]}", h5py.Group))
-        for g in groups:
+        for group in groups:
             for p in phases:
-                _node(f, path, f"/{g}/{p}", h5py.Group)
-        for g in (groups[0], groups[-1]):
+                _node(f, path, f"/{group}/{p}", h5py.Group)
+        for group in (groups[0], groups[-1]):
             for p in phases:
                 for name in ("x", "v", "mass"):
-                    _node(f, path, f"/{g}/{p}/{name}")
+                    _node(f, path, f"/{group}/{p}/{name}")
         rows = []
         try:
-            for g in (groups[0], groups[-1]):
-                m = sum(float(np.sum(f[g][p]["mass"][()])) for p in phases)
-                ke = sum(float(0.5 * np.sum(f[g][p]["mass"][()] * np.sum(f[g][p]["v"][()] ** 2, -1))) for p in phases)
+            for group in (groups[0], groups[-1]):
+                m = sum(float(np.sum(f[group][p]["mass"][()])) for p in phases)
+                ke = sum(
+                    float(0.5 * np.sum(f[group][p]["mass"][()] * np.sum(f[group][p]["v"][()] ** 2, -1))) for p in phases
+                )
                 rows.append((m, ke))
         except (TypeError, ValueError) as e:
             raise ValueError(
-                f"{where}: the masses or velocities of /{g} are not numbers of matching shapes ({e})"
+                f"{where}: the masses or velocities of /{group} are not numbers of matching shapes ({e})"
             ) from None
         lines = [
             f"file:    {os.fspath(path)} (jaxmpm {a.get('jaxmpm_version', '?')}, {a.get('dtype', '?')}, {dim}D)",

@@ -10,10 +10,11 @@ import re
 import shutil
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 
-def check_space(folder, needed: int) -> None:
+def check_space(folder: str | os.PathLike, needed: int) -> None:
     """OSError if the disk holding `folder` has less than `needed` bytes free, saying both."""
     folder = Path(folder)
     probe = folder
@@ -27,7 +28,7 @@ def check_space(folder, needed: int) -> None:
         )
 
 
-def check_new(*paths, overwrite: bool = False) -> None:
+def check_new(*paths: str | os.PathLike, overwrite: bool = False) -> None:
     """Raise FileExistsError naming the first of `paths` that exists, unless overwrite; and, even
     with overwrite, the first that is a directory (a file never replaces a directory). Then make
     sure each path's folder exists and can be written (`check_writable`), so that a run finds out
@@ -48,7 +49,7 @@ def check_new(*paths, overwrite: bool = False) -> None:
     check_writable(*paths)
 
 
-def check_writable(*paths) -> None:
+def check_writable(*paths: str | os.PathLike) -> None:
     """Create each path's folder if needed and write (then delete) a probe file there; OSError
     naming the folder and the reason where that fails (no permission, read-only disk, a file in
     the way)."""
@@ -99,7 +100,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def remove_stale_temporaries(folder) -> list[str]:
+def remove_stale_temporaries(folder: str | os.PathLike) -> list[str]:
     """Delete the temporary files that killed runs left in `folder` (a run killed while it wrote a
     file: SIGKILL, a power cut): those whose process is gone, and those naming no process that are
     older than _UNOWNED_AGE. Returns the names deleted (empty where none, or no such folder)."""
@@ -125,7 +126,7 @@ def remove_stale_temporaries(folder) -> list[str]:
 
 
 @contextlib.contextmanager
-def atomic_write(path: Path):
+def atomic_write(path: Path) -> Iterator[str]:
     """Yield a fresh temporary name in path's directory (naming this process, so that a later run
     knows it stale once the process is gone: `remove_stale_temporaries`); rename it to `path` on
     success, delete it on error (the final name never holds a partial file)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -11,11 +12,15 @@ import numpy as np
 from jaxmpm import diagnostics
 from jaxmpm.io.files import atomic_write, check_new
 from jaxmpm.io.schema import check_scene, check_shapes, units
-from jaxmpm.model.params import default_params
+from jaxmpm.model.params import Params, default_params
+from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import State, phase_slices
 
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
+    from matplotlib.figure import Figure
 
-def plot_state(scene, state: State, path, overwrite: bool = False) -> Path:
+
+def plot_state(scene: Scene, state: State, path: str | os.PathLike, overwrite: bool = False) -> Path:
     """PNG of one State (no time axis), particles coloured by phase: 2D a scatter of x, 1D velocity
     and stress against position, 3D the projection on the x-y plane; in 2D and 3D a second panel
     coloured by damage where any particle is damaged (the crack pattern). Returns the path.
@@ -155,7 +160,9 @@ def _times_of(n: int, panels: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, n - 1, min(panels, n))})
 
 
-def run_figure(scene, history: State, field: str = "speed", panels: int = 4, params=None):
+def run_figure(
+    scene: Scene, history: State, field: str = "speed", panels: int = 4, params: Params | None = None
+) -> Figure:
     """A matplotlib Figure of a run: `field` (PLOT_FIELDS) on the particles at `panels` output
     times in a row with one colorbar (1D: the field against x, one curve per time), and below them
     kinetic, internal and total energy against time over every output. Each snapshot panel is as
@@ -249,18 +256,24 @@ def run_figure(scene, history: State, field: str = "speed", panels: int = 4, par
     return fig
 
 
-def jax_tree_index(tree, i):
+def jax_tree_index(tree: Any, i: int) -> Any:
     """The i-th State of a history (the leading axis indexed; None leaves kept)."""
     return jax.tree.map(lambda a: None if a is None else np.asarray(a)[i], tree)
 
 
-def io_units(name, scene):
+def io_units(name: str, scene: Scene) -> str:
     """The SI unit text of the output field `name` in `scene`'s dimension and geometry."""
     return units(name, scene.dim, scene.axisymmetric)
 
 
 def plot_run(
-    scene, history: State, path, field: str = "speed", panels: int = 4, params=None, overwrite: bool = False
+    scene: Scene,
+    history: State,
+    path: str | os.PathLike,
+    field: str = "speed",
+    panels: int = 4,
+    params: Params | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """PNG of `run_figure` (a field at several times with a colorbar, and energy against time).
     Returns the path; FileExistsError if it exists and not `overwrite`; ValueError for a path

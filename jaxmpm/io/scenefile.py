@@ -119,13 +119,13 @@ def scene_from_dict(d: Mapping) -> Scene:
     d = _check_keys(d, TOP_KEYS, "")
     if "grid" not in d:
         raise ValueError("grid is missing: a scene needs a [grid] table with cells and h")
-    g = _check_keys(d["grid"], GRID_KEYS, "grid")
-    if "cells" not in g or "h" not in g:
-        raise ValueError(f"grid.{'cells' if 'cells' not in g else 'h'} is missing: [grid] needs cells and h")
-    cells = g["cells"]
+    grid_table = _check_keys(d["grid"], GRID_KEYS, "grid")
+    if "cells" not in grid_table or "h" not in grid_table:
+        raise ValueError(f"grid.{'cells' if 'cells' not in grid_table else 'h'} is missing: [grid] needs cells and h")
+    cells = grid_table["cells"]
     if isinstance(cells, list):
         cells = tuple(cells)
-    grid = Grid(cells=cells, h=g["h"], origin=g.get("origin"))
+    grid = Grid(cells=cells, h=grid_table["h"], origin=grid_table.get("origin"))
 
     b = _check_keys(
         d.get("boundary", {}), ("layers",) + tuple(f"{a}_{s}" for a in "xyz" for s in ("lo", "hi")), "boundary"
@@ -386,7 +386,7 @@ def _builder_options(name, build, options) -> dict:
     return options
 
 
-def load_scene(name_or_path: str | os.PathLike, *, overrides: Mapping[str, Any] | None = None, **options) -> Scene:
+def load_scene(name_or_path: str | os.PathLike, *, overrides: Mapping[str, Any] | None = None, **options: Any) -> Scene:
     """A built-in scene by name (options are passed to its builder, e.g. resolution=0.5), or a
     scene file (.toml path). overrides: {'dotted.key': value} applied to the scene's dict form."""
     path = os.fspath(name_or_path)

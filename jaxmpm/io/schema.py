@@ -6,7 +6,6 @@ from __future__ import annotations
 from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import phase_slices
 
-
 UNITS = {
     "x": "m",
     "v": "m/s",
@@ -44,13 +43,13 @@ def units(name: str, dim: int, axisymmetric: bool = False) -> str:
     return UNITS[name]
 
 
-def check_scene(scene) -> None:
+def check_scene(scene: object) -> None:
     """ValueError unless `scene` is a jaxmpm.Scene."""
     if not isinstance(scene, Scene):
         raise ValueError(f"scene = {type(scene).__name__} is invalid: allowed a jaxmpm.Scene")
 
 
-def field_shapes(scene) -> dict:
+def field_shapes(scene: Scene) -> dict:
     """{field: shape} of one State of `scene` (no time axis): x, v (n, d); mass, volume, energy,
     eps_ps, pressure, damage (n,); F, stress (n, md, md) with md = scene.material_dim; C (n, d, d)."""
     n, d, md = phase_slices(scene)[-1].stop, scene.dim, scene.material_dim
@@ -69,7 +68,7 @@ def field_shapes(scene) -> dict:
     }
 
 
-def check_shapes(scene, fields: dict, what: str, lead: tuple = ()) -> None:
+def check_shapes(scene: Scene, fields: dict, what: str, lead: tuple = ()) -> None:
     """ValueError naming the first field of `fields` ({name: array}) whose shape is not the scene's
     (with the leading axes `lead`, e.g. (n_times,)), or that is not a floating-point array."""
     n = phase_slices(scene)[-1].stop

@@ -118,11 +118,11 @@ class Difference:
         if not isinstance(self.base, (Box, Sphere)):
             fail("geometry.base", self.base, "a Box or Sphere")
         minus = (self.minus,) if isinstance(self.minus, (Box, Sphere, Difference)) else tuple(self.minus)
-        for g in minus:
-            if not isinstance(g, (Box, Sphere, Difference)):
-                fail("geometry.minus", g, "a list of Box, Sphere or Difference")
-            if len(g.lo) != len(self.base.lo):
-                fail("geometry.minus", g.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
+        for part in minus:
+            if not isinstance(part, (Box, Sphere, Difference)):
+                fail("geometry.minus", part, "a list of Box, Sphere or Difference")
+            if len(part.lo) != len(self.base.lo):
+                fail("geometry.minus", part.to_dict(), f"{len(self.base.lo)} coordinates per point, as the base")
         object.__setattr__(self, "minus", minus)
 
     @property
@@ -135,12 +135,12 @@ class Difference:
 
     def contains(self, x: np.ndarray) -> np.ndarray:
         inside = self.base.contains(x)
-        for g in self.minus:
-            inside = inside & ~g.contains(x)
+        for part in self.minus:
+            inside = inside & ~part.contains(x)
         return inside
 
     def to_dict(self) -> dict[str, Any]:
-        return {"type": "difference", "base": self.base.to_dict(), "minus": [g.to_dict() for g in self.minus]}
+        return {"type": "difference", "base": self.base.to_dict(), "minus": [part.to_dict() for part in self.minus]}
 
 
 GEOMETRIES = {"box": Box, "sphere": Sphere, "difference": Difference}
@@ -165,7 +165,7 @@ def geometry_from_dict(d: Mapping, where: str) -> Box | Sphere | Difference:
     if cls is Difference:
         d["base"] = geometry_from_dict(d["base"], f"{where}.base")
         minus = d["minus"] if isinstance(d["minus"], (list, tuple)) else [d["minus"]]
-        d["minus"] = tuple(geometry_from_dict(g, f"{where}.minus[{i}]") for i, g in enumerate(minus))
+        d["minus"] = tuple(geometry_from_dict(part, f"{where}.minus[{i}]") for i, part in enumerate(minus))
     try:
         return cls(**d)
     except ValueError as e:

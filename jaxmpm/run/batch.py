@@ -21,11 +21,14 @@ import dataclasses
 import functools
 import math
 import warnings
+from collections.abc import Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.typing import ArrayLike
 
 from jaxmpm.model.numbers import OLD_NAMES, warn_old_name
 from jaxmpm.model.params import Params, check_params
@@ -39,7 +42,7 @@ from jaxmpm.run.simulate import simulate
 from jaxmpm.scenes import initial_state
 
 
-def stack(items):
+def stack(items: Sequence[Any]) -> Any:
     """One pytree with a leading axis from a list of equal-structure pytrees (Params or States)."""
     if not items:
         raise ValueError("stack: the list is empty: allowed one or more Params")
@@ -56,7 +59,7 @@ def stack(items):
     return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *items)
 
 
-def member(batch, i: int):
+def member(batch: Any, i: int) -> Any:
     """The i-th member of a batched pytree (i in [-B, B) for a batch of B; an IndexError outside,
     where indexing an array would clamp silently)."""
     if not isinstance(i, (int, np.integer)) or isinstance(i, bool):
@@ -67,7 +70,7 @@ def member(batch, i: int):
     return jax.tree.map(lambda a: a[i], batch)
 
 
-def batch_size(batch) -> int:
+def batch_size(batch: Params) -> int:
     """The common leading (batch) size of every leaf of a Params batch; ValueError where they differ."""
     sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(batch)}
     if len(sizes) != 1 or -1 in sizes:
@@ -78,7 +81,7 @@ def batch_size(batch) -> int:
     return sizes.pop()
 
 
-def sweep(params: Params, **values) -> Params:
+def sweep(params: Params, **values: ArrayLike) -> Params:
     """Params with a leading batch axis: each named top-level field (c_h, drag, cfl, ...)
     takes the given values in turn; all other numbers are repeated. Several fields must have equal
     lengths (zipped, not crossed: cross them with numpy.meshgrid first). A vector field takes a list
@@ -189,12 +192,12 @@ def ensemble(
     n_out: int | None = None,
     *,
     n_steps: int | None = None,
-    checkpoint="auto",
-    shard=True,
-    allow_short=False,
-    progress=True,
-    safety=1.25,
-):
+    checkpoint: bool | str | None = "auto",
+    shard: bool = True,
+    allow_short: bool = False,
+    progress: bool = True,
+    safety: float = 1.25,
+) -> tuple[State, State]:
     """Run every member of `params_batch` (Params with a leading axis B) from `state` (one State
     for all, or a batched State; default: each member's own initial state) to t_end (s).
 

@@ -31,20 +31,24 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
+from jax.typing import DTypeLike
 
+from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import State, phase_slices
 from jaxmpm.step import make_step
 
 AXIS = "particles"
 
 
-def particle_mesh(devices=None) -> Mesh:
+def particle_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
     """A one-axis Mesh named 'particles' over `devices` (default: all of jax.devices())."""
     devices = jax.devices() if devices is None else list(devices)
     if len(devices) < 1:
@@ -62,7 +66,7 @@ def mesh_size(mesh: Mesh) -> int:
     return int(mesh.devices.size)
 
 
-def to_host(tree):
+def to_host(tree: Any) -> Any:
     """Every array of `tree` as a NumPy array in this process. Arrays spread over several
     processes' devices (after `jax.distributed.initialize`) are gathered from all of them
     (`jax.experimental.multihost_utils.process_allgather`): every process must call this
@@ -76,7 +80,7 @@ def to_host(tree):
     return jax.tree.map(host, tree)
 
 
-def padding_scale(dtype) -> float:
+def padding_scale(dtype: DTypeLike) -> float:
     """Mass and volume of a padding copy relative to its twin: eps^2 of the dtype (1.4e-14 in
     float32, 4.9e-32 in float64), far below the round-off of any nodal sum the twin is part of,
     and far above the smallest normal number for any particle volume a scene has (a smaller
@@ -85,7 +89,7 @@ def padding_scale(dtype) -> float:
 
 
 @functools.lru_cache(maxsize=32)
-def shard_order(scene, shards: int):
+def shard_order(scene: Scene, shards: int) -> tuple[np.ndarray, np.ndarray]:
     """(order, pad): the sharded particle order, in which device j's block holds the j-th part of
     every phase (ceil(n / shards) particles of a phase of n), phase after phase. order (N',) gives
     the particle of the scene's order at each position; pad (N',) marks the copies that fill a
@@ -118,12 +122,12 @@ def _per_particle(state, fn_particle, fn_time):
     )
 
 
-def state_spec(state) -> State:
+def state_spec(state: State) -> State:
     """PartitionSpecs of a State: particles split along 'particles', the time replicated."""
     return _per_particle(state, lambda a: P(AXIS), lambda a: P())
 
 
-def to_shards(scene, state, mesh):
+def to_shards(scene: Scene, state: State, mesh: Mesh) -> State:
     """The State in the sharded particle order, placed on the mesh (particles split, t replicated).
     Padding copies move exactly as their twins (all they gather is the same) and carry
     `padding_scale` of their mass and volume, so their share of every nodal sum is below round-off."""
@@ -141,7 +145,7 @@ def to_shards(scene, state, mesh):
     )
 
 
-def from_shards(scene, state, shards: int, time_axis: bool = False):
+def from_shards(scene: Scene, state: State, shards: int, time_axis: bool = False) -> State:
     """Back to the scene's particle order, padding dropped (a State, or a history with a leading
     time axis)."""
     order, pad = shard_order(scene, shards)
@@ -151,7 +155,7 @@ def from_shards(scene, state, shards: int, time_axis: bool = False):
     return _per_particle(state, take, lambda a: a)
 
 
-def make_sharded_step(scene, mesh):
+def make_sharded_step(scene: Scene, mesh: Mesh) -> Callable[..., State]:
     """step(params, state, t_stop, dt) for a State in the sharded order on `mesh` (`to_shards`):
     `make_step` of one device's block under jax.shard_map. dt None: the CFL step."""
     shards = mesh_size(mesh)

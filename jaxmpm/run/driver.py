@@ -15,33 +15,44 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import signal
 import time
 import warnings
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import checkify
+from jax.sharding import Mesh
+from jax.typing import ArrayLike
 from tqdm.auto import tqdm
 
+from jaxmpm.model.params import Params
 from jaxmpm.model.sampling import usable_region
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State
 from jaxmpm.numerics.compile import jit
 from jaxmpm.run.distributed import from_shards, make_sharded_step, mesh_size
-from jaxmpm.run.health import CHECKED_FIELDS as CHECKED_FIELDS, find_nonfinite, finite_and_inside, health_fn
-from jaxmpm.run.planning import compile_seconds, planned_steps
-from jaxmpm.run.progress import REPORTS, progress_bar as progress_bar, report_steps
-from jaxmpm.run.signals import Interrupted, StopRequest, interrupt_on as interrupt_on
+from jaxmpm.run.health import CHECKED_FIELDS as CHECKED_FIELDS
+from jaxmpm.run.health import find_nonfinite, finite_and_inside, health_fn
+from jaxmpm.run.planning import RunPlan, compile_seconds, planned_steps
+from jaxmpm.run.progress import REPORTS, report_steps
+from jaxmpm.run.progress import progress_bar as progress_bar
+from jaxmpm.run.signals import Interrupted, StopRequest
+from jaxmpm.run.signals import interrupt_on as interrupt_on
 from jaxmpm.run.tangents import evolving_tangents
 from jaxmpm.step import make_step
 
 
-def is_traced(tree) -> bool:
+def is_traced(tree: Any) -> bool:
     """True where any leaf of the pytree is a JAX tracer (inside jit, grad or vmap)."""
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
 
 
-def stack_states(states):
+def stack_states(states: Sequence[State]) -> State:
     """States (a sequence of T pytrees of equal structure) stacked into one with a leading time axis (T, ...)."""
     return jax.tree.map(lambda *a: jnp.stack(a), *states)
 
@@ -87,7 +98,7 @@ def _checked_chunk_fn(scene, length):
     return jit(checkify.checkify(run, errors=checkify.user_checks | checkify.nan_checks))
 
 
-def nested_sizes(n):
+def nested_sizes(n: int) -> tuple[int, int]:
     """(a, b): n steps as a chunks of b steps, b = ceil(sqrt(n)), a = ceil(n / b) (a b >= n)."""
     b = max(1, math.isqrt(n - 1) + 1) if n > 1 else 1
     return -(-n // b), b
@@ -125,12 +136,14 @@ CHECKPOINT_MODES = (False, "steps", "nested")
 AUTO_STEPS_BYTES = 2**30  # "auto": "steps" while the stored input states take at most this much
 
 
-def state_bytes(state) -> int:
+def state_bytes(state: State) -> int:
     """Bytes of one State (works on tracers: shapes and dtypes only)."""
     return sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in jax.tree.leaves(state))
 
 
-def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
+def checkpoint_mode(
+    checkpoint: bool | str | None, state: State | None = None, n_steps: int | None = None, copies: int = 1
+) -> bool | str:
     """The checkpointing of the fixed-length driver named by simulate's `checkpoint` argument:
     False (None), "steps", "nested" (True), or "auto": "steps" when the n_steps stored input
     states of `copies` runs (an ensemble's members) take at most AUTO_STEPS_BYTES (1 GiB), else
@@ -151,7 +164,9 @@ def checkpoint_mode(checkpoint, state=None, n_steps=None, copies=1):
 
 
 @functools.lru_cache(maxsize=32)
-def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
+def fixed_fn(
+    scene: Scene, n_per_out: int, n_out: int, checkpoint: bool | str, mesh: Mesh | None = None, report: bool = False
+) -> Callable[..., tuple[State, State]]:
     """Fixed-length driver: n_out intervals of n_per_out steps. checkpoint (`checkpoint_mode`):
     False: reverse mode stores every step's intermediates (memory ~ n_out n_per_out steps'
     residuals, MiB each); "steps": each step under jax.checkpoint, its input state stored and the
@@ -192,7 +207,9 @@ def fixed_fn(scene, n_per_out, n_out, checkpoint, mesh=None, report=False):
     return run
 
 
-def first_failure(scene, params, state, stop, dt, length, mesh=None):
+def first_failure(
+    scene: Scene, params: Params, state: State, stop: ArrayLike, dt: ArrayLike, length: int, mesh: Mesh | None = None
+) -> tuple[int, str] | None:
     """(step, message): the first of `length` steps from `state` toward `stop` after which a
     particle is non-finite or outside the grid, replayed one step at a time, with
     `find_nonfinite`'s message for the state after it; None where no step of them fails. The same
@@ -236,26 +253,26 @@ def _warn_outputs_beyond_steps(scene, params, state, t_end, n_out, dt):
 
 
 def host_driver(
-    scene,
-    params,
-    state,
-    t_end,
-    n_out,
-    dt,
-    progress,
-    chunk,
+    scene: Scene,
+    params: Params,
+    state: State,
+    t_end: float,
+    n_out: int,
+    dt: float | None,
+    progress: bool,
+    chunk: int | None,
     *,
-    t0=None,
-    history=None,
-    start_out=0,
-    restart_file=None,
-    restart_every=0,
-    debug=False,
-    mesh=None,
-    plan=None,
-    restart_saved=False,
-    write_restart=None,
-):
+    t0: float | None = None,
+    history: list[State] | None = None,
+    start_out: int = 0,
+    restart_file: str | os.PathLike | None = None,
+    restart_every: int = 0,
+    debug: bool = False,
+    mesh: Mesh | None = None,
+    plan: RunPlan | None = None,
+    restart_saved: bool = False,
+    write_restart: Callable[..., None] | None = None,
+) -> tuple[State, State]:
     """The adaptive host-driven run: jitted chunks until each output time (see the module
     docstring). plan: a `RunPlan` told the first chunk's run time (compilation excluded), which may
     refuse the run before anything is saved. restart_saved: `restart_file` already holds this run's

@@ -4,20 +4,24 @@ where a failed state fails (on the host: the field, the phase and the particle).
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
+from jaxmpm.model.params import Params
 from jaxmpm.model.sampling import usable_region
-from jaxmpm.model.state import phase_slices
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, phase_slices
 from jaxmpm.numerics.compile import jit
 from jaxmpm.step import cfl_time_step
-
 
 CHECKED_FIELDS = ("x", "v", "stress", "volume", "energy")  # the particle fields a run checks are finite
 
 
-def finite_and_inside(state, lo, hi):
+def finite_and_inside(state: State, lo: ArrayLike, hi: ArrayLike) -> tuple[jax.Array, jax.Array]:
     """(finite, inside): whether every particle's CHECKED_FIELDS are finite, and every particle lies
     in the grid's usable region [lo, hi] (`usable_region`); two boolean scalars, traceable."""
     finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(getattr(state, n))) for n in CHECKED_FIELDS]))
@@ -28,7 +32,7 @@ def finite_and_inside(state, lo, hi):
 
 
 @functools.lru_cache(maxsize=32)
-def health_fn(scene):
+def health_fn(scene: Scene) -> Callable[[Params, State], tuple[jax.Array, jax.Array]]:
     """Jitted on-device check of a chunk's result: (everything finite and inside the grid, CFL dt).
     Only these two scalars cross to the host each chunk; arrays do only when a check fails."""
     _, lo, hi = usable_region(scene)
@@ -45,7 +49,7 @@ def _phase_of(scene, i):
     return next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
 
 
-def find_nonfinite(scene, state):
+def find_nonfinite(scene: Scene, state: State) -> str | None:
     """None if every particle value is finite and every particle inside the grid, else a message
     naming the field, the phase and the particle index."""
     for name in CHECKED_FIELDS:

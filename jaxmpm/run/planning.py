@@ -10,6 +10,7 @@ import os
 
 import jax
 import numpy as np
+from jax.typing import ArrayLike
 
 from jaxmpm.model.memory import check_run_memory, run_memory, size_text
 from jaxmpm.model.params import Params, check_params
@@ -18,7 +19,7 @@ from jaxmpm.model.state import State, check_state, phase_slices
 from jaxmpm.step import cfl_time_step
 
 
-def count(name: str, value, minimum: int = 1) -> int:
+def count(name: str, value: object, minimum: int = 1) -> int:
     """An integer >= minimum given as an integer or an integral float; ValueError naming the
     argument for anything else (a fraction is not truncated, a string is not a number)."""
     if not isinstance(value, bool):
@@ -30,7 +31,7 @@ def count(name: str, value, minimum: int = 1) -> int:
     raise ValueError(f"{name} = {value!r} is invalid: allowed an integer >= {minimum}")
 
 
-def check_t_end(t_end, t0) -> float:
+def check_t_end(t_end: object, t0: ArrayLike) -> float:
     """t_end (s) as a float, finite and after the start time t0 (s)."""
     try:
         if isinstance(t_end, (bool, str, bytes)):
@@ -45,7 +46,7 @@ def check_t_end(t_end, t0) -> float:
     return t_end
 
 
-def seconds(name: str, value) -> float:
+def seconds(name: str, value: object) -> float:
     """A time argument (s) as a float; ValueError naming it where it is not a number."""
     try:
         if isinstance(value, (bool, str, bytes)):  # "1e-3" is text, not a time: say so rather than parse it
@@ -55,7 +56,7 @@ def seconds(name: str, value) -> float:
         raise ValueError(f"{name} = {value!r} is invalid: allowed a number of seconds") from None
 
 
-def host_cfl_step(scene, params, state, cfl=None, checked=False) -> float:
+def host_cfl_step(scene: Scene, params: Params, state: State, cfl: float | None = None, checked: bool = False) -> float:
     """cfl_time_step (s) at `state` as a float, outside jit: params and state checked first (unless
     `checked`), and a ValueError where the step is not a finite time > 0 (a speed that overflows
     the dtype, or a wave speed that is not finite), instead of a plan of zero or infinite steps."""
@@ -77,7 +78,7 @@ def cfl_limit(scene: Scene, params: Params, state: State) -> float:
     return host_cfl_step(scene, params, state, cfl=1.0)
 
 
-def check_dt(scene, params, state, dt) -> None:
+def check_dt(scene: Scene, params: Params, state: State, dt: float) -> None:
     """ValueError if a user-given dt exceeds the CFL limit params.cfl * h / max(c + |v|)."""
     limit = host_cfl_step(scene, params, state, checked=True)
     if not dt > 0:
@@ -104,7 +105,9 @@ def plan_steps(
     return planned_steps(scene, params, state, t_end, dt, safety)
 
 
-def planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
+def planned_steps(
+    scene: Scene, params: Params, state: State, t_end: float, dt: float | None = None, safety: float = 1.25
+) -> int:
     """`plan_steps` for params and state already checked (the host driver's, whose state may span
     several processes, where check_state cannot read it)."""
     span = check_t_end(t_end, state.t) - float(state.t)
@@ -122,7 +125,7 @@ def planned_steps(scene, params, state, t_end, dt=None, safety=1.25) -> int:
     return max(1, math.ceil(safety * span / host_cfl_step(scene, params, state, checked=True)))
 
 
-def acceleration_bound(scene, params, state, dt=None) -> None:
+def acceleration_bound(scene: Scene, params: Params, state: State, dt: float | None = None) -> None:
     """ValueError before a run whose gravity (plus a phase's body force) moves a particle at rest
     more than a cell in one step: in a step of dt a constant acceleration a adds a dt to the speed
     and a dt^2 to the position (PHYSICS 2.1's symplectic update), and the CFL step (the largest,
@@ -133,9 +136,10 @@ def acceleration_bound(scene, params, state, dt=None) -> None:
     if scene.gravity is not None:
         accel.append(("gravity", np.asarray(params.gravity, float)))
     if getattr(scene, "body_force", False):
-        g = np.asarray(params.gravity, float) if scene.gravity is not None else 0.0
+        gravity = np.asarray(params.gravity, float) if scene.gravity is not None else 0.0
         accel += [
-            (f"gravity + params.body_force['{k}']", g + np.asarray(v, float)) for k, v in params.body_force.items()
+            (f"gravity + params.body_force['{k}']", gravity + np.asarray(v, float))
+            for k, v in params.body_force.items()
         ]
     if not accel:
         return
@@ -162,7 +166,7 @@ def _free_faces(scene) -> set:
     )
 
 
-def flight_warnings(scene, state, t_end) -> list[str]:
+def flight_warnings(scene: Scene, state: State, t_end: float) -> list[str]:
     """A line for each phase whose fastest particle, unstopped, would leave the grid through a face
     without a wall before t_end (s): a speed out of scale with the grid and the run (1e5 m/s on
     a 1 m grid) fails after some steps; a collision may stop or turn it, so this is a warning."""
@@ -201,7 +205,7 @@ MAX_MINUTES = 60.0  # a run estimated to take longer asks for confirmation (yes=
 MAX_MINUTES_ENV = "JAXMPM_MAX_MINUTES"
 
 
-def max_minutes(value=None) -> float:
+def max_minutes(value: float | None = None) -> float:
     """The confirmation threshold in minutes: `value`, else $JAXMPM_MAX_MINUTES, else MAX_MINUTES."""
     where = "max_minutes"
     if value is None:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 
 import numpy as np
+from jax.typing import ArrayLike
 from tqdm.auto import tqdm
-
 
 # The progress bar of the fixed-length run in flight (`fixed_fn` with report=True), fed by
 # jax.debug.callback from inside the compiled scan: steps done, counted on the host.
@@ -14,7 +15,7 @@ _PROGRESS = {"bar": None}
 REPORTS = 100  # progress updates per fixed-length run, at most
 
 
-def report_steps(done):
+def report_steps(done: ArrayLike) -> None:
     bar = _PROGRESS["bar"]
     done = int(np.max(np.asarray(done)))  # the same count from every member or device
     if bar is None:
@@ -28,7 +29,7 @@ def report_steps(done):
 
 
 @contextlib.contextmanager
-def progress_bar(total: int, desc: str, enabled: bool):
+def progress_bar(total: int, desc: str, enabled: bool) -> Iterator[None]:
     """A tqdm bar of `total` steps that `fixed_fn(..., report=True)` advances while it runs."""
     if not enabled:
         yield

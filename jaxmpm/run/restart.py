@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import h5py
@@ -25,8 +26,9 @@ import numpy as np
 from jaxmpm.io import open_h5
 from jaxmpm.io.files import atomic_write
 from jaxmpm.io.scenefile import parse_toml, scene_from_dict, scene_to_toml
-from jaxmpm.model.params import check_params, default_params
-from jaxmpm.model.state import check_state, init_state
+from jaxmpm.model.params import Params, check_params, default_params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State, check_state, init_state
 from jaxmpm.run.driver import host_driver, stack_states
 from jaxmpm.version import __version__
 
@@ -81,19 +83,21 @@ def _append(path, state, history, next_out) -> bool:
         return False
     leaves = [np.asarray(a) for a in jax.tree.leaves(state)]
     with h5py.File(path, "r+") as f:
-        st, hist = f.get("state"), f.get("history")
-        if not (isinstance(st, h5py.Group) and isinstance(hist, h5py.Group)) or len(st) != len(leaves):
+        state_group, history_group = f.get("state"), f.get("history")
+        if not (isinstance(state_group, h5py.Group) and isinstance(history_group, h5py.Group)) or len(
+            state_group
+        ) != len(leaves):
             return False
-        done = len(hist)
-        if done > len(history) or (done and f"{done - 1:04d}" not in hist):
+        done = len(history_group)
+        if done > len(history) or (done and f"{done - 1:04d}" not in history_group):
             return False
-        datasets = [st.get(f"{i:04d}") for i in range(len(leaves))]
+        datasets = [state_group.get(f"{i:04d}") for i in range(len(leaves))]
         if not all(
             isinstance(d, h5py.Dataset) and d.shape == a.shape and d.dtype == a.dtype for d, a in zip(datasets, leaves)
         ):
             return False
         for k in range(done, len(history)):
-            _write_tree(hist.create_group(f"{k:04d}"), history[k])
+            _write_tree(history_group.create_group(f"{k:04d}"), history[k])
         for d, a in zip(datasets, leaves):
             d.write_direct(np.ascontiguousarray(a))
         f.attrs["next_out"] = next_out
@@ -101,7 +105,21 @@ def _append(path, state, history, next_out) -> bool:
     return True
 
 
-def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chunk, dt, append=False):
+def save(
+    path: str | os.PathLike,
+    scene: Scene,
+    params: Params,
+    state: State,
+    history: Sequence[State],
+    *,
+    t0: float,
+    t_end: float,
+    n_out: int,
+    next_out: int,
+    chunk: int,
+    dt: float | None,
+    append: bool = False,
+) -> None:
     """Write the restart file at `path`. history: list of finished output States; t0, t_end (s):
     the run's start and end; n_out, next_out: its outputs and the next one due; chunk: steps per
     chunk; dt: the fixed step (s) or None (the CFL step). append=False: the whole file, written
@@ -127,9 +145,9 @@ def save(path, scene, params, state, history, *, t0, t_end, n_out, next_out, chu
             f.create_dataset("scene", data=scene_to_toml(scene))
             _write_tree(f.create_group("params"), params)
             _write_tree(f.create_group("state"), state)
-            hist = f.create_group("history")
+            history_group = f.create_group("history")
             for k, s in enumerate(history):
-                _write_tree(hist.create_group(f"{k:04d}"), s)
+                _write_tree(history_group.create_group(f"{k:04d}"), s)
 
 
 def _open(path):
@@ -170,7 +188,7 @@ def _dtypes(f, path):
     return tuple(out)
 
 
-def dtype(path) -> np.dtype:
+def dtype(path: str | os.PathLike) -> np.dtype:
     """The floating-point dtype (float32 or float64) of the run saved in the restart file `path`:
     with float64, enable 64-bit JAX (jax.config.update('jax_enable_x64', True)) before `load`.
     FileNotFoundError if it does not exist; ValueError naming it if it is not a restart file."""
@@ -221,7 +239,7 @@ def _driver(a, path) -> dict:
     return r
 
 
-def load(path) -> dict:
+def load(path: str | os.PathLike) -> dict:
     """Read a restart file: {scene, params, state, history, t0, t_end, n_out, next_out, chunk, dt}.
 
     FileNotFoundError if `path` does not exist. ValueError naming the file and what is wrong if it
@@ -284,7 +302,9 @@ def load(path) -> dict:
     return dict(scene=scene, params=params, state=state, history=history, **drv)
 
 
-def resume(path, *, progress=True, restart_every=None):
+def resume(
+    path: str | os.PathLike, *, progress: bool = True, restart_every: int | None = None
+) -> tuple[Scene, Params, State, State]:
     """Continue the run saved in restart file `path` to its end; returns (scene, params, final,
     history) as `simulate` would have (of a complete run, its saved results, with nothing run).
     restart_every: keep saving every so many chunks."""

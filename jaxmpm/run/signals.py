@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import signal
 import threading
+from types import FrameType
+from typing import NoReturn
 
 
 class Interrupted(KeyboardInterrupt):
@@ -16,7 +18,7 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
-def interrupt_on(signum, frame):
+def interrupt_on(signum: int, frame: FrameType | None) -> NoReturn:
     """A signal handler that raises `Interrupted` (a KeyboardInterrupt), so that `finally` blocks
     clean up; `jaxmpm run` installs it for SIGTERM. While the host driver runs, it defers the
     signals handled by this or by Python's default SIGINT handler to the end of its chunk."""
@@ -35,7 +37,7 @@ class StopRequest:
         self.signum = None
         self.previous = {}
 
-    def install(self):
+    def install(self) -> None:
         if threading.current_thread() is not threading.main_thread():
             return
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -44,13 +46,13 @@ class StopRequest:
                 self.previous[sig] = h
                 signal.signal(sig, self.handler)
 
-    def handler(self, signum, frame):
+    def handler(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:
             self.restore()
             raise Interrupted(signum, "stopped at once by a second signal: the restart file holds its last save")
         self.signum = signum
 
-    def restore(self):
+    def restore(self) -> None:
         for sig, h in self.previous.items():
             signal.signal(sig, h)
         self.previous = {}

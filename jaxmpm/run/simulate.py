@@ -6,18 +6,19 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
 
-from jaxmpm.run import distributed
 from jaxmpm.io.files import check_new
 from jaxmpm.model.memory import check_memory
 from jaxmpm.model.params import Params, check_params
 from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import State, check_state, check_state_dtypes
-from jaxmpm.run import restart
+from jaxmpm.run import distributed, restart
 from jaxmpm.run.driver import checkpoint_mode, fixed_fn, host_driver, is_traced, progress_bar
 from jaxmpm.run.planning import RunPlan, acceleration_bound, check_dt, check_t_end, count, flight_warnings, seconds
 
@@ -31,20 +32,20 @@ def simulate(
     *,
     dt: float | None = None,
     n_steps: int | None = None,
-    progress=True,
-    checkpoint="auto",
-    chunk=None,
-    restart_file=None,
-    restart_every=10,
-    debug=False,
-    mesh=None,
-    overwrite=False,
-    allow_short=False,
-    yes=False,
-    max_minutes=None,
-    announce=None,
-    _report=None,
-):
+    progress: bool = True,
+    checkpoint: bool | str | None = "auto",
+    chunk: int | None = None,
+    restart_file: str | os.PathLike | None = None,
+    restart_every: int = 10,
+    debug: bool = False,
+    mesh: Mesh | None = None,
+    overwrite: bool = False,
+    allow_short: bool = False,
+    yes: bool = False,
+    max_minutes: float | None = None,
+    announce: Callable[[list[str]], None] | None = None,
+    _report: bool | None = None,
+) -> tuple[State, State]:
     """Advance `state` to t_end (s) and return (final, history).
 
     history: the State at n_out + 1 evenly spaced times from state.t to t_end (the initial state

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
+
+from jaxmpm.model.state import State
 
 
 # State fields whose tangent a step never changes: mass (constant) and, with a given dt, t
@@ -22,7 +25,7 @@ def _unmarked(fixed_dt: bool) -> tuple[str, ...]:
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
-def evolving_tangents(fixed_dt, state, inputs):
+def evolving_tangents(fixed_dt: bool, state: State, inputs: Any) -> State:
     """state itself. Its JVP gives every field that a step gives a tangent (all but `_unmarked`)
     one already, depending on the nonzero tangents of (state, inputs) (its own tangent plus a zero
     selected against a sum of those), where JAX would know it to be zero until a first step had made it

@@ -11,6 +11,8 @@ from jaxmpm.materials import Material
 from jaxmpm.model.scene import MAX_PPC, SHAPES, Boundary, Box, Grid, Phase, Scene, Sphere
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, Range, choice, integer, number  # noqa: F401  (FLAG: the builders' flags)
+from jaxmpm.model.params import Params
+from jaxmpm.model.state import State
 
 SHAPE = choice(*SHAPES)
 PPC = Range(
@@ -33,7 +35,7 @@ def cells_of(n: float, resolution: float, minimum: int = 2) -> int:
 IMPACT_CELLS, IMPACT_LEAST_CELLS = 64, 8  # cells across the unit square at resolution 1, at least
 
 
-def elastic_impact_ranges(**_) -> dict:
+def elastic_impact_ranges(**_: object) -> dict:
     """The allowed values of `elastic_impact`'s options."""
     floor = options.cells_floor(IMPACT_CELLS, IMPACT_LEAST_CELLS)
     return {"resolution": options.resolution(floor, IMPACT_LEAST_CELLS, "the unit square"), "shape": SHAPE}
@@ -71,7 +73,7 @@ def elastic_impact(resolution: float = 1.0, shape: str = "ddmp") -> Scene:
 BAR_LENGTH, BAR_SPEED = 25.0, 10.0
 
 
-def vibrating_bar_state(scene, params, state):
+def vibrating_bar_state(scene: Scene, params: Params, state: State) -> State:
     """The bar's first mode: v(X, 0) = v0 sin(pi X / (2 L)), the amplitude v0 (m/s) being the
     phase's initial velocity (state.v on entry)."""
 
@@ -88,7 +90,7 @@ def _fixed_low_end(cells: int, h: float, shape: str):
     return Grid(cells=(cells,), h=h), Boundary(faces=(("x_lo", "fixed"),))
 
 
-def vibrating_bar_ranges(**_) -> dict:
+def vibrating_bar_ranges(**_: object) -> dict:
     """The allowed values of `vibrating_bar`'s options."""
     return {
         "cells": integer(2),
@@ -128,7 +130,7 @@ def vibrating_bar(cells: int = 100, v0: float = 0.1, shape: str = "ddmp", cfl: f
     )
 
 
-def self_weight_column_ranges(**_) -> dict:
+def self_weight_column_ranges(**_: object) -> dict:
     """The allowed values of `self_weight_column`'s options."""
     return {
         "cells": integer(2),
@@ -202,7 +204,7 @@ def _mpm88_scale_cap(dim: int) -> float:
     return (MAX_PPC + 0.5) ** 3 * side**3 * 32 / 8 if dim == 3 else math.inf
 
 
-def mpm88_ranges(dim: int = 2, ppc_scale: float = 1.0, **_) -> dict:
+def mpm88_ranges(dim: int = 2, ppc_scale: float = 1.0, **_: object) -> dict:
     """The allowed values of `mpm88`'s options; n_grid's floor at the dim and ppc_scale given."""
     ok = dim in (2, 3) and options._real(ppc_scale) and ppc_scale > 0
     least = mpm88_least_n_grid(dim, ppc_scale) if ok else 8

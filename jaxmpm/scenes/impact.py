@@ -32,6 +32,7 @@ from jaxmpm.scenes.taylor import (  # the Taylor impacts, importable from here a
     taylor_steel_material as taylor_steel_material,
     TAYLOR_STEEL_SPEED as TAYLOR_STEEL_SPEED,
 )
+from jaxmpm.materials import Material
 
 SPHERE_DIAMETER = 9.53e-3  # m (Piekutowski 1993)
 PLATE_THICKNESS = 2.21e-3  # m, t / D = 0.232
@@ -47,7 +48,9 @@ VISCOSITY_PAIR = options.Range(
 )
 
 
-def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_DIAMETER, **_) -> dict:
+def debris_cloud_ranges(
+    plate_thickness: float = PLATE_THICKNESS, sphere_diameter: float = SPHERE_DIAMETER, **_: object
+) -> dict:
     """The allowed values of `debris_cloud`'s options (the resolution's floor at the plate_thickness
     given: 4 cells across the plate; plate_radius's at the sphere_diameter given)."""
     t = plate_thickness if POSITIVE.contains(plate_thickness) else PLATE_THICKNESS
@@ -72,7 +75,7 @@ def debris_cloud_ranges(plate_thickness=PLATE_THICKNESS, sphere_diameter=SPHERE_
     }
 
 
-def chamber_air(pressure: float):
+def chamber_air(pressure: float) -> Material:
     """The library's `air` (ideal gas, gamma = 1.4) at `pressure` (Pa) and the library's room
     temperature T_room: rho0 = p / (R T_room), p0 = p (1.209 kg/m^3 at 1 bar, 12.69 at 10.5 bar)."""
     c = library_constants("air")

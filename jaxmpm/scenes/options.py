@@ -42,7 +42,7 @@ def integer(least: int, note: str = "") -> Range:
     )
 
 
-def choice(*values) -> Range:
+def choice(*values: float | str) -> Range:
     """One of `values` (numbers or names)."""
     words = " | ".join(("true" if v else "false") if isinstance(v, bool) else str(v) for v in values)
     return Range(words, lambda v: any(v == c and isinstance(v, bool) == isinstance(c, bool) for c in values))
@@ -70,7 +70,7 @@ def check(scene: str, ranges: dict[str, Range], values: dict[str, Any]) -> None:
             raise ValueError(f"{scene}: {name} = {values[name]!r} is invalid: allowed {r.words}")
 
 
-def builder_options(build) -> dict:
+def builder_options(build: Callable[..., Any]) -> dict:
     """{name: inspect.Parameter} of the options a built-in scene's builder takes by name."""
     params = inspect.signature(build).parameters
     return {p: v for p, v in params.items() if v.kind in (v.POSITIONAL_OR_KEYWORD, v.KEYWORD_ONLY)}

@@ -6,6 +6,7 @@ import math
 
 import jax
 import numpy as np
+from jax.typing import ArrayLike
 
 from jaxmpm.materials import Material
 from jaxmpm.materials.library import library_constants, library_material
@@ -14,6 +15,7 @@ from jaxmpm.model.scene import Boundary, Box, Difference, Grid, Phase, Scene
 from jaxmpm.model.state import phase_slices
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import FLAG, choice, number, optional
+from jaxmpm.model.state import State
 
 ROD_DIAMETER, ROD_LENGTH, ROD_SPEED = 7.5e-3, 75e-3, 2000.0  # m, m (L/D = 10), m/s
 REFERENCE_PLASTIC_STRAIN = 0.5
@@ -41,7 +43,7 @@ def tate_strengths(rod: str = "tungsten_wha", target: str = "steel_4340") -> tup
     return flow_stress(rod), cavity_expansion_pressure(y_t, library_constants(target)["G"])
 
 
-def tate_penetration_speed(v, rho_p: float, rho_t: float, y_p: float, r_t: float):
+def tate_penetration_speed(v: ArrayLike, rho_p: float, rho_t: float, y_p: float, r_t: float) -> np.ndarray:
     """Steady penetration speed U (m/s) of an eroding rod at speed v (Alekseevskii 1966; Tate 1967):
     the interface stress balance 1/2 rho_p (v - U)^2 + Y_p = 1/2 rho_t U^2 + R_t solved for U,
     U = (v - sqrt(mu v^2 + (1 - mu) 2 (R_t - Y_p) / rho_p)) / (1 - mu), mu = rho_t / rho_p
@@ -56,7 +58,7 @@ def tate_penetration_speed(v, rho_p: float, rho_t: float, y_p: float, r_t: float
     return np.maximum(u, 0.0)
 
 
-def rod_penetration_ranges(diameter=ROD_DIAMETER, **_) -> dict:
+def rod_penetration_ranges(diameter: float = ROD_DIAMETER, **_: object) -> dict:
     """The allowed values of `rod_penetration`'s options (2 cells across the rod's radius,
     D / 10 / resolution each; the target at least the rod's diameter given)."""
     d = diameter if number(0.0).contains(diameter) else ROD_DIAMETER
@@ -183,7 +185,7 @@ def rod_penetration(
     )
 
 
-def penetration_measures(scene, state) -> dict:
+def penetration_measures(scene: Scene, state: State) -> dict:
     """Penetration depth P (m, depth below the target's face of the deepest rod material within a
     rod radius of the axis), remaining rod length (m, from P's point to the top of the rod's tail)
     and tail speed (m/s, mean -v_z of the tail) of a rod_penetration State. The tail is the rod
@@ -205,7 +207,7 @@ def _rod_diameter(scene) -> float:
     return 2.0 * scene.phases[scene.phase_names().index("rod")].geometry.hi[0]
 
 
-def penetration_history(scene, history) -> dict:
+def penetration_history(scene: Scene, history: State) -> dict:
     """`penetration_measures` at every output time of a History: arrays t (s), depth, rod_length,
     tail_speed."""
     t = np.asarray(history.t)
@@ -213,7 +215,9 @@ def penetration_history(scene, history) -> dict:
     return {"t": t, **{key: np.array([r[key] for r in rows]) for key in rows[0]}}
 
 
-def steady_penetration_rate(scene, history, window=(0.3, 1.0)) -> tuple[float, float]:
+def steady_penetration_rate(
+    scene: Scene, history: State, window: tuple[float, float] = (0.3, 1.0)
+) -> tuple[float, float]:
     """(U, U_tate) in m/s: the least-squares slope of the depth over the part `window` (fractions
     of the last output time) of the run, and the Tate speed at the tail speed averaged there."""
     m = penetration_history(scene, history)
@@ -229,7 +233,7 @@ def steady_penetration_rate(scene, history, window=(0.3, 1.0)) -> tuple[float, f
     return u, u_tate
 
 
-def laminate_material():
+def laminate_material() -> Material:
     """The sandwich's composite layer: a CFRP laminate as a `transversely_isotropic` material whose
     symmetry axis (the model's axis 1, fibre_theta = pi / 2) is the plate's normal z, so the plies'
     plane (r, theta) is the isotropic plane and the scene stays axisymmetric. Illustrative constants
@@ -250,7 +254,7 @@ def laminate_material():
     )
 
 
-def sandwich_target_ranges(**_) -> dict:
+def sandwich_target_ranges(**_: object) -> dict:
     """The allowed values of `sandwich_target`'s options (3 cells across a 3 mm face sheet, 0.5 mm / resolution each)."""
     return {
         "speed": number(0.0, unit="m/s"),
@@ -332,7 +336,7 @@ def sandwich_target(
 FLUIDS = ("air", "water")
 
 
-def projectile_concrete_ranges(**_) -> dict:
+def projectile_concrete_ranges(**_: object) -> dict:
     """The allowed values of `projectile_concrete`'s options (3 cells across the projectile's 5 mm
     radius, 1 mm / resolution each)."""
     return {
@@ -412,7 +416,7 @@ def projectile_concrete(
     )
 
 
-def projectile_speed(scene, history) -> dict:
+def projectile_speed(scene: Scene, history: State) -> dict:
     """Arrays t (s), speed (m/s, the projectile's mass-weighted mean of -v_z) and nose depth (m,
     below the block's face; negative above it) at every output of a projectile_concrete history."""
     sl = phase_slices(scene)[0]

@@ -9,6 +9,7 @@ from jaxmpm.materials import Material, library_material
 from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
 from jaxmpm.scenes import options
 from jaxmpm.scenes.options import choice, number, optional
+from jaxmpm.model.state import State
 
 
 TAYLOR_LENGTH, TAYLOR_DIAMETER, TAYLOR_SPEED = 25.4e-3, 7.62e-3, 190.0  # m, m, m/s
@@ -18,7 +19,7 @@ TAYLOR_STEEL_LENGTH, TAYLOR_STEEL_DIAMETER, TAYLOR_STEEL_SPEED = 32.4e-3, 6.4e-3
 TAYLOR_BILINEAR_LENGTH, TAYLOR_BILINEAR_DIAMETER, TAYLOR_BILINEAR_SPEED = 32.4e-3, 6.4e-3, 227.0
 
 
-def taylor_steel_material():
+def taylor_steel_material() -> Material:
     """The 42CrMo4 steel of the Johnson-Cook Taylor-impact verification case (O. Pantale's DynELA
     finite element code, documentation chapter "DynELA impact sample cases", compared there with
     Abaqus/Explicit): E = 206.9 GPa, nu = 0.3, rho0 = 7830 kg/m^3; Johnson-Cook A = 806 MPa,
@@ -45,7 +46,7 @@ def taylor_steel_material():
     )
 
 
-def taylor_bilinear_copper_material():
+def taylor_bilinear_copper_material() -> Material:
     """The copper of the bilinear Taylor-bar benchmark (Wilkins & Guinan 1973; computed since by
     many codes, e.g. Simo 1992, Zienkiewicz et al. 1998, Foulk et al. 2021): rho0 = 8930 kg/m^3,
     E = 117 GPa, nu = 0.35, J2 with initial yield stress 400 MPa and a linear isotropic hardening
@@ -79,7 +80,7 @@ TAYLOR_CASES = {  # material -> (L0 in m, D0 in m, speed in m/s, material builde
 }
 
 
-def taylor_bar_ranges(**_) -> dict:
+def taylor_bar_ranges(**_: object) -> dict:
     """The allowed values of `taylor_bar`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
     case = "the chosen material's case"
     return {
@@ -180,7 +181,7 @@ def taylor_bar(
     )
 
 
-def taylor_measures(scene, state):
+def taylor_measures(scene: Scene, state: State) -> tuple[float, float]:
     """(final length, footprint diameter) in m of a taylor_bar State: the largest z of the rod, and
     twice the largest r among particles within one cell of the wall. These are particle-centre
     extents; the material's surface lies half a particle spacing h / (2 ppc) beyond each free face,
@@ -193,7 +194,7 @@ def taylor_measures(scene, state):
 BRITTLE_LENGTH, BRITTLE_DIAMETER, BRITTLE_SPEED = 30e-3, 10e-3, 20.0  # m, m, m/s
 
 
-def brittle_rod_material():
+def brittle_rod_material() -> Material:
     """The brittle rod's `maxwell_brittle` material. The seed gives the model, not its constants;
     these are a soda-lime glass's handbook elastic constants (rho0 = 2500 kg/m^3, E = 70 GPa,
     nu = 0.22) with an illustrative tensile strength sigma_t = 100 MPa, tau = 1 s (elastic while
@@ -203,7 +204,7 @@ def brittle_rod_material():
     )
 
 
-def taylor_brittle_ranges(**_) -> dict:
+def taylor_brittle_ranges(**_: object) -> dict:
     """The allowed values of `taylor_brittle`'s options (3 cells across the rod's radius, D / 20 / resolution each)."""
     return {
         "speed": number(0.0, unit="m/s"),
