@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
+from collections.abc import Sequence
 
 import jax
 
@@ -47,7 +48,7 @@ _pairs = parse_pairs
 _load = load_with_options
 
 
-def cmd_scenes(args) -> int:
+def cmd_scenes(args: argparse.Namespace) -> int:
     """`jaxmpm scenes [NAME] [--verbose]`: the built-in scenes; with NAME or --verbose, every builder
     option with its default and allowed values (jaxmpm.scenes.options, the table the builders check)."""
     if args.name is not None and args.name not in BUILTINS:
@@ -75,7 +76,7 @@ def format_scene_options(name: str) -> str:
     return "\n".join(lines)
 
 
-def cmd_materials(args) -> int:
+def cmd_materials(args: argparse.Namespace) -> int:
     if args.key is None and args.model is not None:
         raise ValueError(f"--model {args.model} needs a library key: jaxmpm materials KEY --model {args.model}")
     if args.key is None:
@@ -122,7 +123,7 @@ def cmd_materials(args) -> int:
     return 0
 
 
-def cmd_show(args) -> int:
+def cmd_show(args: argparse.Namespace) -> int:
     print(io.summary(args.file))
     if args.png:
         scene, history = io.read(args.file)
@@ -239,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `jaxmpm` command. Returns the exit status (0 ok, 1 failed run, 2 bad input)."""
     args = build_parser().parse_args(argv)
     try:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import math
 import numbers
@@ -11,6 +12,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import jax
@@ -27,9 +29,10 @@ from jaxmpm.run.driver import interrupt_on
 from jaxmpm.run.restart import dtype
 from jaxmpm.scenes import BUILTINS, DEFAULT_SCENE, initial_state
 from jaxmpm.scenes.options import builder_options
+from jaxmpm.model.scene import Scene
 
 
-def parse_pairs(items, flag: str) -> dict:
+def parse_pairs(items: Sequence[str] | None, flag: str) -> dict:
     """{'key': value} from ['key=value', ...]; values parsed as TOML (numbers, lists, strings)."""
     out = {}
     for item in items or ():
@@ -45,7 +48,7 @@ def parse_pairs(items, flag: str) -> dict:
     return out
 
 
-def load_with_options(name: str, overrides: dict, options: dict):
+def load_with_options(name: str, overrides: dict, options: dict) -> Scene:
     """The scene `name` (built-in or .toml) with builder options and --set overrides applied."""
     if options and name in BUILTINS:
         parameters = builder_options(BUILTINS[name].build)
@@ -57,7 +60,7 @@ def load_with_options(name: str, overrides: dict, options: dict):
     return jaxmpm.load_scene(name, overrides=overrides, **options)
 
 
-def check_option_type(name: str, value, default) -> None:
+def check_option_type(name: str, value: object, default: object) -> None:
     """A builder option must be of its default's kind: a number for a number, a string for a string."""
 
     def number(x):
@@ -171,7 +174,7 @@ def _remove_stale_temporaries(out: Path) -> None:
         )
 
 
-def cmd_run(args) -> int:
+def cmd_run(args: argparse.Namespace) -> int:
     """`jaxmpm run`; a run that stops (an error, Ctrl-C) before writing anything removes the folders
     it created for --out, so a refused run leaves nothing behind."""
     _check_run_args(args)
@@ -292,7 +295,7 @@ def _run(args) -> int:
     return 0
 
 
-def scene_and_folder(args, path: Path | None):
+def scene_and_folder(args: argparse.Namespace, path: Path | None) -> tuple[Scene, Path]:
     """(scene, output folder) of `run`: those of the restart file `path` with --resume (refused
     where its run is complete), else the scene named with its --set and --opt, and --out."""
     if path is not None:
@@ -313,7 +316,7 @@ def scene_and_folder(args, path: Path | None):
     return scene, out
 
 
-def print_summary(scene, start: dict, end: dict, wall: float, written) -> None:
+def print_summary(scene: Scene, start: dict, end: dict, wall: float, written: Iterable[Path]) -> None:
     """The run's wall time, its mass and energies at the start and the end, and the files written."""
     print(f"done in {wall:.3g} s wall time (compilation included)")
     w = 26

@@ -25,6 +25,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
+from typing import Any
 
 from jaxmpm.model.scene import Scene, is_fluid
 from jaxmpm.model.state import State, phase_slices
@@ -111,7 +112,7 @@ def slope(t: jax.Array, y: jax.Array) -> jax.Array:
     return jnp.tensordot(tc, y - jnp.mean(y, axis=0), axes=(0, 0)) / jnp.sum(tc**2)
 
 
-def feature_velocities(scene: Scene, history: State, first: int = 0, **kw) -> jax.Array:
+def feature_velocities(scene: Scene, history: State, first: int = 0, **kw: Any) -> jax.Array:
     """(3,) axial velocities (m/s) of points 1, 2, 4: slopes of their soft positions over the
     outputs history[first:] (a State with a leading time axis)."""
     pos = jnp.stack([feature_positions(scene, _at(history, k), **kw) for k in range(first, history.t.shape[0])])
