@@ -8,12 +8,14 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Sequence
+from typing import Any
 
 import jax
 import numpy as np
 
 from calibration import plots
-from calibration import fit as F
+from calibration import fit as fitting
 from calibration.arguments import (
     c_h_values,
     check_scene,
@@ -26,6 +28,7 @@ from calibration.arguments import (
     versions,
 )
 from calibration.fit_command import cmd_fit
+from calibration.data import Measurements
 from calibration.model import theta_of
 from calibration import synthetic
 from jaxmpm.run import compile_cache
@@ -35,7 +38,9 @@ from jaxmpm.numerics.compile import jit
 SEED_CH = (0.02, 0.15, 0.5, 1.0)
 
 
-def cmd_table(args) -> int:
+def cmd_table(args: argparse.Namespace) -> int:
+    """`python -m calibration table`: the feature velocities for each --c-h, in one vmapped call,
+    beside the experiment and the seed's (ch_table.csv, ch_table.png)."""
     values = c_h_values(args.c_h, "--c-h")
     positive(args.drag, "--drag", " (C_d)")
     check_scene(args, fields=(1, 2))
@@ -78,14 +83,15 @@ def cmd_table(args) -> int:
     return 0
 
 
-def table_rows(meas, values, v):
+def table_rows(meas: Measurements, values: Sequence[float], v: np.ndarray) -> list[dict[str, Any]]:
+    """The table's rows (source, C_h, v (3,) km/s): the experiment, the seed's and jaxmpm's, v (len(values), 3)."""
     rows = [dict(source="experiment", C_h=None, v=meas.experiment)]
     rows += [dict(source="seed", C_h=c, v=meas.seed[c]) for c in sorted(meas.seed)]
     rows += [dict(source="jaxmpm", C_h=c, v=vi) for c, vi in zip(values, v)]
     return rows
 
 
-def format_table(rows) -> str:
+def format_table(rows: list[dict[str, Any]]) -> str:
     lines = [f"{'source':<12}{'C_h':>8}{'point 1':>10}{'point 2':>10}{'point 4':>10}   (km/s)"]
     for r in rows:
         ch = "" if r["C_h"] is None else f"{r['C_h']:g}"
@@ -93,7 +99,7 @@ def format_table(rows) -> str:
     return "\n".join(lines)
 
 
-def cmd_synthetic(args) -> int:
+def cmd_synthetic(args: argparse.Namespace) -> int:
     """Synthetic recovery on the small two-phase scene of calibration.synthetic: observables
     generated at (C_d, C_h) = --truth, the fit started at --start, recovered values printed."""
     jax.config.update("jax_enable_x64", True)
@@ -107,7 +113,7 @@ def cmd_synthetic(args) -> int:
         flush=True,
     )
     target = jit(model.observables)(theta_of(*truth))
-    res = F.fit(
+    res = fitting.fit(
         model.observables,
         target,
         theta_of(*start),
@@ -148,7 +154,7 @@ def cmd_synthetic(args) -> int:
     return 0
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     # longer than 60 lines on purpose: one declaration per command and flag, in the order --help lists them
     ap = argparse.ArgumentParser(
         prog="python -m calibration", description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter
@@ -272,7 +278,7 @@ def build_parser():
     return ap
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not args.no_cache:
         compile_cache.enable()  # before anything compiles: a second start reads the programs back

@@ -3,7 +3,10 @@ is allowed), their output folder, the measurements they read and the model they 
 
 from __future__ import annotations
 
+import argparse
+import os
 import platform
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
@@ -15,7 +18,7 @@ from calibration import data
 from calibration.model import CloudModel
 
 
-def new_folder(out) -> Path:
+def new_folder(out: str | os.PathLike) -> Path:
     """The output folder, created; refuses one that holds a previous result, and a path through a file."""
     out = Path(out)
     blocker = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
@@ -35,17 +38,18 @@ def new_folder(out) -> Path:
     return out
 
 
-def pair(text, flag):
+def pair(text: str, flag: str) -> tuple[float, float]:
+    """The two positive finite numbers (C_d, C_h) of a flag's 'C_d,C_h' text."""
     try:
-        a, b = (float(x) for x in text.split(","))
+        c_d, c_h = (float(x) for x in text.split(","))
     except ValueError:
         raise ValueError(f"{flag} {text!r} is invalid: allowed two numbers 'C_d,C_h', e.g. 2.0,0.3") from None
-    if not (0 < a < np.inf and 0 < b < np.inf):
+    if not (0 < c_d < np.inf and 0 < c_h < np.inf):
         raise ValueError(f"{flag} {text!r} is invalid: allowed C_d > 0 and C_h > 0 (finite)")
-    return a, b
+    return c_d, c_h
 
 
-def c_h_values(text, flag):
+def c_h_values(text: str, flag: str) -> list[float]:
     """The comma-separated C_h values of --c-h, each finite and > 0."""
     try:
         values = [float(x) for x in text.split(",")]
@@ -56,20 +60,21 @@ def c_h_values(text, flag):
     return values
 
 
-def positive(value, flag, what=""):
+def positive(value: float, flag: str, what: str = "") -> float:
     """value if it is finite and > 0."""
     if not 0 < value < np.inf:
         raise ValueError(f"{flag} {value} is invalid: allowed a finite number > 0{what}")
     return value
 
 
-def iterations(n):
+def iterations(n: int) -> int:
+    """n if it is an integer >= 1 (--iterations)."""
     if not (isinstance(n, int) and n >= 1):
         raise ValueError(f"--iterations {n} is invalid: allowed an integer >= 1")
     return n
 
 
-def bounds(lo_hi, flag):
+def bounds(lo_hi: Sequence[float], flag: str) -> tuple[float, float]:
     """(LO, HI) of a landscape axis: 0 < LO < HI, finite."""
     lo, hi = lo_hi
     if not 0 < lo < hi < np.inf:
@@ -77,7 +82,7 @@ def bounds(lo_hi, flag):
     return lo, hi
 
 
-def check_scene(args, fields):
+def check_scene(args: argparse.Namespace, fields: tuple[int, ...]) -> None:
     """Refuse a bad --fields, --t-end or --resolution before any work; the debris_cloud scene, built
     here without arrays (milliseconds), checks what remains: the resolution's lower bound."""
     if args.fields not in fields:
@@ -113,7 +118,7 @@ def check_scene(args, fields):
         raise ValueError(f"--resolution {args.resolution} is invalid: {e}") from None
 
 
-def measurements(path):
+def measurements(path: str | os.PathLike | None) -> data.Measurements:
     """data.load(path); a missing, unreadable or bad table a usage error naming --data (data.load's
     messages start with the path)."""
     try:
@@ -124,8 +129,8 @@ def measurements(path):
         raise ValueError(f"--data {path}: the file cannot be read ({e.strerror or e})") from None
 
 
-def versions():
-
+def versions() -> dict[str, str]:
+    """The versions of Python, JAX, optax, jaxmpm and NumPy, and JAX's backend, for result.json."""
     return {
         "python": platform.python_version(),
         "jax": jax.__version__,
@@ -136,7 +141,8 @@ def versions():
     }
 
 
-def setup_model(args):
+def setup_model(args: argparse.Namespace) -> CloudModel:
+    """The debris-cloud model of the arguments (--float32 off: float64 switched on first)."""
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
     return CloudModel.build(

@@ -10,6 +10,7 @@ and `ch_<value>` (the seed's computed velocity for C_h = value), all in km/s, do
 from __future__ import annotations
 
 import csv
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,17 +23,17 @@ MAX_SPEED_KM_S = 20.0  # a sanity bound: the impact is at 6.71 km/s
 
 @dataclass(frozen=True)
 class Measurements:
-    points: tuple  # (3,) feature ids, in POINTS order
+    points: tuple[int, ...]  # (3,) feature ids, in POINTS order
     experiment: np.ndarray  # (3,) km/s
-    seed: dict  # {C_h: (3,) km/s} the seed's computed velocities
+    seed: dict[float, np.ndarray]  # {C_h: (3,) km/s} the seed's computed velocities
     source: str
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if tuple(self.points) != POINTS:
             raise ValueError(f"points {self.points} != {POINTS}")
 
 
-def _number(text, row, column, path):
+def _number(text: str | None, row: int, column: str, path: Path) -> float:
     try:
         value = float(text)
     except (TypeError, ValueError):
@@ -47,7 +48,7 @@ def _number(text, row, column, path):
     return value
 
 
-def load(path=None) -> Measurements:
+def load(path: str | os.PathLike | None = None) -> Measurements:
     """Read and check the table (default: the packaged copy). Raises ValueError naming the row
     (1-based, header excluded) and column of any missing column, non-numeric or out-of-range
     value, unknown or repeated point id, or missing point; FileNotFoundError naming a missing file."""

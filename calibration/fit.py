@@ -18,25 +18,34 @@ C = exp(theta) the delta method gives se(C) = C se(theta).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.typing import ArrayLike
 from tqdm.auto import tqdm
 
 from jaxmpm.numerics.compile import jit
 
+# theta (2,) -> observables (3,) km/s (or any shape): the forward model the fit differentiates
+Observables = Callable[[jax.Array], jax.Array]
 
-def loss_fn(velocities, target, weights=None):
-    """theta -> weighted sum of squared residuals (km/s)^2, and the residuals (3,)."""
+
+def loss_fn(
+    velocities: Observables, target: ArrayLike, weights: ArrayLike | None = None
+) -> Callable[[jax.Array], tuple[jax.Array, jax.Array]]:
+    """theta (2,) -> weighted sum of squared residuals (km/s)^2, and the residuals (3,); target and
+    weights (3,)."""
     target = jnp.asarray(target)
-    w = jnp.ones_like(target) if weights is None else jnp.asarray(weights, target.dtype)
+    weight = jnp.ones_like(target) if weights is None else jnp.asarray(weights, target.dtype)
 
-    def loss(theta):
-        r = velocities(theta) - target
-        return jnp.sum(w * r * r), r
+    def loss(theta: jax.Array) -> tuple[jax.Array, jax.Array]:
+        residuals = velocities(theta) - target
+        return jnp.sum(weight * residuals * residuals), residuals
 
     return loss
 
@@ -46,7 +55,9 @@ class FitResult:
     theta: np.ndarray  # (2,) best (log C_d, log C_h)
     loss: float  # at theta, (km/s)^2
     residuals: np.ndarray  # (3,) km/s at theta, model - experiment
-    history: list = field(default_factory=list)  # per iteration: dict(iteration, loss, C_d, C_h, grad (d loss /
+    history: list[dict[str, Any]] = field(
+        default_factory=list
+    )  # per iteration: dict(iteration, loss, C_d, C_h, grad (d loss /
     #                                               d theta), grad_norm, residuals, evaluations, seconds)
     stopped: str = ""
     seconds: float = 0.0
@@ -54,14 +65,17 @@ class FitResult:
     evaluations: int = 0  # value-and-gradient evaluations (line searches included)
 
     @property
-    def values(self):
+    def values(self) -> np.ndarray:
+        """(2,) the best (C_d, C_h) = exp(theta)."""
         return np.exp(self.theta)
 
 
 METHODS = ("adam", "lbfgs")
 
 
-def _optax_update(opt, gradient, state, theta, **extra):
+def _optax_update(
+    opt: optax.GradientTransformationExtraArgs, gradient: jax.Array, state: Any, theta: jax.Array, **extra: Any
+) -> tuple[jax.Array, Any]:
     """(theta_new, state): optax's update and apply_updates run under JAX's standard dtype
     promotion. optax (third-party code) mixes dtypes implicitly (its step count and schedules
     against float64 parameters), which the strict promotion of jaxmpm's tests would reject; the
@@ -71,37 +85,37 @@ def _optax_update(opt, gradient, state, theta, **extra):
         return optax.apply_updates(theta, updates), state
 
 
-def _adam_step(loss, learning_rate, decay):
+def _adam_step(loss: Callable, learning_rate: float, decay: float) -> tuple[Callable, Callable]:
     """(init, step): step(theta, state) -> (theta_new, state, loss, residuals, grad, evaluations)."""
     value_and_grad = jax.value_and_grad(loss, has_aux=True)
     opt = optax.adam(optax.exponential_decay(learning_rate, transition_steps=1, decay_rate=decay))
 
     @jit
     def step(theta, state):
-        (value, r), g = value_and_grad(theta)
-        theta, state = _optax_update(opt, g, state, theta)
-        return theta, state, value, r, g, 1
+        (value, residuals), gradient = value_and_grad(theta)
+        theta, state = _optax_update(opt, gradient, state, theta)
+        return theta, state, value, residuals, gradient, 1
 
     return opt.init, step
 
 
-def _lbfgs_step(loss):
+def _lbfgs_step(loss: Callable) -> tuple[Callable, Callable]:
     """As _adam_step for optax's L-BFGS; the residuals are those of the iterate (one forward run)."""
-    value_fn = lambda th: loss(th)[0]
+    value_fn = lambda theta: loss(theta)[0]
     opt = optax.lbfgs()
     value_and_grad = optax.value_and_grad_from_state(value_fn)
 
     @jit
     def step(theta, state):
-        value, g = value_and_grad(theta, state=state)
-        new_theta, new_state = _optax_update(opt, g, state, theta, value=value, grad=g, value_fn=value_fn)
+        value, gradient = value_and_grad(theta, state=state)
+        new_theta, new_state = _optax_update(opt, gradient, state, theta, value=value, grad=gradient, value_fn=value_fn)
         n_eval = 1 + optax.tree_utils.tree_get(new_state, "num_linesearch_steps")
-        return new_theta, new_state, value, loss(theta)[1], g, n_eval
+        return new_theta, new_state, value, loss(theta)[1], gradient, n_eval
 
     return opt.init, step
 
 
-def _real(value):
+def _real(value: Any) -> float:
     """value as a float; nan where it is not a real number (a string, an array of several)."""
     if isinstance(value, (str, bytes)):
         return np.nan
@@ -111,7 +125,7 @@ def _real(value):
         return np.nan
 
 
-def _float_array(value):
+def _float_array(value: Any) -> np.ndarray | None:
     """value as a float array; None where it is not numeric."""
     try:
         return np.asarray(value, dtype=float)
@@ -119,68 +133,80 @@ def _float_array(value):
         return None
 
 
-def _require(ok, name, value, allowed):
+def _require(ok: bool, name: str, value: Any, allowed: str) -> None:
+    """A ValueError naming the argument, its value and what is allowed, unless ok."""
     if not ok:
         raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
 
 
-def check_options(iterations, learning_rate, decay, tol, rtol, patience, method):
+def check_options(
+    iterations: int, learning_rate: float, decay: float, tol: float, rtol: float, patience: int, method: str
+) -> None:
     """Refuse out-of-range scalar options of `fit` (ValueError naming the option and its range)."""
     integer = lambda x: isinstance(x, (int, np.integer)) and not isinstance(x, bool)
     _require(integer(iterations) and iterations >= 1, "iterations", iterations, "an integer >= 1")
     _require(method in METHODS, "method", method, " | ".join(METHODS))
-    lr, d, t, rt = _real(learning_rate), _real(decay), _real(tol), _real(rtol)
+    rate, factor, absolute, relative = _real(learning_rate), _real(decay), _real(tol), _real(rtol)
     _require(
-        np.isfinite(lr) and lr > 0, "learning_rate", learning_rate, "a finite number > 0 (Adam's step in log space)"
+        np.isfinite(rate) and rate > 0, "learning_rate", learning_rate, "a finite number > 0 (Adam's step in log space)"
     )
-    _require(0 < d <= 1, "decay", decay, "a number in (0, 1] (the learning rate's factor per iteration; 1: constant)")
-    _require(np.isfinite(t) and t >= 0, "tol", tol, "a finite number >= 0 (km/s)^2")
-    _require(np.isfinite(rt) and rt >= 0, "rtol", rtol, "a finite number >= 0")
+    _require(
+        0 < factor <= 1, "decay", decay, "a number in (0, 1] (the learning rate's factor per iteration; 1: constant)"
+    )
+    _require(np.isfinite(absolute) and absolute >= 0, "tol", tol, "a finite number >= 0 (km/s)^2")
+    _require(np.isfinite(relative) and relative >= 0, "rtol", rtol, "a finite number >= 0")
     _require(integer(patience) and patience >= 1, "patience", patience, "an integer >= 1")
 
 
-def check_arrays(velocities, target, theta0, weights):
+def check_arrays(
+    velocities: Observables, target: ArrayLike, theta0: ArrayLike, weights: ArrayLike | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(target, theta0, weights) as float arrays, checked: theta0 finite (2,); target finite, of the
     shape of velocities(theta0) (found by tracing, without running it); weights None or finite,
     >= 0, not all 0, of target's shape. ValueError naming the argument otherwise."""
-    th = _float_array(theta0)
+    start = _float_array(theta0)
     _require(
-        th is not None and th.shape == (2,) and np.all(np.isfinite(th)),
+        start is not None and start.shape == (2,) and np.all(np.isfinite(start)),
         "theta0",
         theta0,
         "finite numbers of shape (2,): (log C_d, log C_h)",
     )
-    tg = _float_array(target)
-    _require(tg is not None and np.all(np.isfinite(tg)), "target", target, "finite numbers (km/s)")
-    shape = jax.eval_shape(velocities, jnp.asarray(th, jnp.zeros(()).dtype)).shape
-    if tg.shape != shape:
-        raise ValueError(f"target of shape {tg.shape} is invalid: allowed the shape of velocities(theta0), {shape}")
+    measured = _float_array(target)
+    _require(measured is not None and np.all(np.isfinite(measured)), "target", target, "finite numbers (km/s)")
+    shape = jax.eval_shape(velocities, jnp.asarray(start, jnp.zeros(()).dtype)).shape
+    if measured.shape != shape:
+        raise ValueError(
+            f"target of shape {measured.shape} is invalid: allowed the shape of velocities(theta0), {shape}"
+        )
     if weights is None:
-        return tg, th, None
-    w = _float_array(weights)
+        return measured, start, None
+    weight = _float_array(weights)
     _require(
-        w is not None and w.shape == tg.shape and np.all(np.isfinite(w) & (w >= 0)) and np.any(w > 0),
+        weight is not None
+        and weight.shape == measured.shape
+        and np.all(np.isfinite(weight) & (weight >= 0))
+        and np.any(weight > 0),
         "weights",
         weights,
-        f"None or finite numbers >= 0, not all 0, of target's shape {tg.shape}",
+        f"None or finite numbers >= 0, not all 0, of target's shape {measured.shape}",
     )
-    return tg, th, w
+    return measured, start, weight
 
 
 def fit(
-    velocities,
-    target,
-    theta0,
-    iterations=30,
-    learning_rate=0.15,
-    decay=0.97,
-    tol=1e-6,
-    rtol=1e-4,
-    patience=5,
-    weights=None,
-    progress=True,
-    method="adam",
-):
+    velocities: Observables,
+    target: ArrayLike,
+    theta0: ArrayLike,
+    iterations: int = 30,
+    learning_rate: float = 0.15,
+    decay: float = 0.97,
+    tol: float = 1e-6,
+    rtol: float = 1e-4,
+    patience: int = 5,
+    weights: ArrayLike | None = None,
+    progress: bool = True,
+    method: str = "adam",
+) -> FitResult:
     """Minimise the loss over theta from theta0 with `method` ('adam' or 'lbfgs').
     velocities: theta (2,) -> (3,) km/s (or any observables), differentiable; target: of its shape.
     learning_rate > 0 and decay in (0, 1] (Adam's rate at iteration k: learning_rate * decay^k);
@@ -199,35 +225,37 @@ def fit(
         bar = tqdm(total=iterations, desc=f"fit ({method})", unit="it")
     start = time.perf_counter()
     result.stopped = f"iterations ({iterations})"
-    for it in range(iterations):
+    for iteration in range(iterations):
         t0 = time.perf_counter()
-        new_theta, new_state, loss_v, r, g, n_eval = step(theta, state)
-        loss_v, g_np, n_eval = float(loss_v), np.asarray(g), int(n_eval)
-        result.evaluations += n_eval
-        if not (np.isfinite(loss_v) and np.all(np.isfinite(g_np))):
-            result.stopped = f"non-finite loss or gradient at iteration {it} (theta = {np.asarray(theta).tolist()})"
+        new_theta, new_state, loss_value, residuals, gradient_array, evaluations = step(theta, state)
+        loss_value, gradient, evaluations = float(loss_value), np.asarray(gradient_array), int(evaluations)
+        result.evaluations += evaluations
+        if not (np.isfinite(loss_value) and np.all(np.isfinite(gradient))):
+            result.stopped = (
+                f"non-finite loss or gradient at iteration {iteration} (theta = {np.asarray(theta).tolist()})"
+            )
             break
-        c = np.exp(np.asarray(theta))
+        values = np.exp(np.asarray(theta))
         result.history.append(
             dict(
-                iteration=it,
-                loss=loss_v,
-                C_d=float(c[0]),
-                C_h=float(c[1]),
-                grad=g_np.tolist(),
-                grad_norm=float(np.linalg.norm(g_np)),
-                residuals=np.asarray(r).tolist(),
-                evaluations=n_eval,
+                iteration=iteration,
+                loss=loss_value,
+                C_d=float(values[0]),
+                C_h=float(values[1]),
+                grad=gradient.tolist(),
+                grad_norm=float(np.linalg.norm(gradient)),
+                residuals=np.asarray(residuals).tolist(),
+                evaluations=evaluations,
                 seconds=time.perf_counter() - t0,
             )
         )
-        if loss_v < result.loss:
-            result.theta, result.loss, result.residuals = np.asarray(theta), loss_v, np.asarray(r)
+        if loss_value < result.loss:
+            result.theta, result.loss, result.residuals = np.asarray(theta), loss_value, np.asarray(residuals)
         if bar is not None:
-            bar.set_postfix_str(f"loss={loss_v:.4g} C_d={c[0]:.4g} C_h={c[1]:.4g}")
+            bar.set_postfix_str(f"loss={loss_value:.4g} C_d={values[0]:.4g} C_h={values[1]:.4g}")
             bar.update(1)
-        if loss_v < tol:
-            result.stopped = f"loss {loss_v:.3g} < tol {tol:g}"
+        if loss_value < tol:
+            result.stopped = f"loss {loss_value:.3g} < tol {tol:g}"
             break
         losses = [h["loss"] for h in result.history]
         if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
@@ -240,30 +268,35 @@ def fit(
     return result
 
 
-def check_starts(theta0s):
+def check_starts(theta0s: ArrayLike) -> np.ndarray:
     """theta0s as a float array (K, 2) of finite starting points, K >= 1; ValueError otherwise."""
-    th = _float_array(theta0s)
+    starts = _float_array(theta0s)
     _require(
-        th is not None and th.ndim == 2 and th.shape[0] >= 1 and th.shape[1] == 2 and np.all(np.isfinite(th)),
+        starts is not None
+        and starts.ndim == 2
+        and starts.shape[0] >= 1
+        and starts.shape[1] == 2
+        and np.all(np.isfinite(starts)),
         "theta0s",
         theta0s,
         "finite numbers of shape (K, 2), K >= 1: K starting points (log C_d, log C_h)",
     )
-    return th
+    return starts
 
 
 @dataclass
 class MultiStartResult:
-    fits: list  # one FitResult per start, in the order of the starts
+    fits: list[FitResult]  # one FitResult per start, in the order of the starts
     best: int  # index of the start whose best iterate has the lowest loss
     seconds: float = 0.0
 
     @property
-    def best_fit(self):
+    def best_fit(self) -> FitResult:
+        """The FitResult of the best start."""
         return self.fits[self.best]
 
 
-def best_start(fits):
+def best_start(fits: Sequence[FitResult]) -> int:
     """Index of the fit with the lowest loss (the first of equals); non-finite losses never win
     unless all are."""
     losses = np.array([f.loss if np.isfinite(f.loss) else np.inf for f in fits])
@@ -271,18 +304,18 @@ def best_start(fits):
 
 
 def fit_starts(
-    velocities,
-    target,
-    theta0s,
-    iterations=30,
-    learning_rate=0.15,
-    decay=0.97,
-    tol=1e-6,
-    rtol=1e-4,
-    patience=5,
-    weights=None,
-    progress=True,
-):
+    velocities: Observables,
+    target: ArrayLike,
+    theta0s: ArrayLike,
+    iterations: int = 30,
+    learning_rate: float = 0.15,
+    decay: float = 0.97,
+    tol: float = 1e-6,
+    rtol: float = 1e-4,
+    patience: int = 5,
+    weights: ArrayLike | None = None,
+    progress: bool = True,
+) -> MultiStartResult:
     """Adam from each of K starting points theta0s (K, 2), all K advanced together: every
     iteration is one vmapped value-and-gradient of the K points (`jax.vmap` of `fit`'s Adam step),
     so a batch costs one compiled program. Each start stops by `fit`'s rules (loss < tol, or a
@@ -297,86 +330,88 @@ def fit_starts(
     target, _, weights = check_arrays(velocities, target, starts[0], weights)
     loss = loss_fn(velocities, target, weights)
     init, step = _adam_step(loss, learning_rate, decay)
-    vstep = jit(jax.vmap(step))
-    K = starts.shape[0]
+    batched_step = jit(jax.vmap(step))
+    n_starts = starts.shape[0]
     theta = jnp.asarray(starts, jnp.zeros(()).dtype)
     state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), jax.vmap(init)(theta))
     fits = [
         FitResult(theta=starts[k], loss=np.inf, residuals=np.full(target.shape, np.nan), method="adam")
-        for k in range(K)
+        for k in range(n_starts)
     ]
-    for f in fits:
-        f.stopped = f"iterations ({iterations})"
-    active = np.ones(K, bool)
+    for result in fits:
+        result.stopped = f"iterations ({iterations})"
+    active = np.ones(n_starts, bool)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=iterations, desc=f"fit (adam, {K} starts)", unit="it")
+        bar = tqdm(total=iterations, desc=f"fit (adam, {n_starts} starts)", unit="it")
     start = time.perf_counter()
-    for it in range(iterations):
+    for iteration in range(iterations):
         t0 = time.perf_counter()
-        new_theta, new_state, loss_v, r, g, _ = vstep(theta, state)
-        loss_v, r, g = np.asarray(loss_v), np.asarray(r), np.asarray(g)
+        new_theta, new_state, loss_value, residuals, gradient, _ = batched_step(theta, state)
+        loss_value, residuals, gradient = np.asarray(loss_value), np.asarray(residuals), np.asarray(gradient)
         seconds = time.perf_counter() - t0
-        th_np = np.asarray(theta)
+        thetas = np.asarray(theta)
         for k in np.flatnonzero(active):
-            f = fits[k]
-            f.evaluations += 1
-            if not (np.isfinite(loss_v[k]) and np.all(np.isfinite(g[k]))):
-                f.stopped = f"non-finite loss or gradient at iteration {it} (theta = {th_np[k].tolist()})"
+            result = fits[k]
+            result.evaluations += 1
+            if not (np.isfinite(loss_value[k]) and np.all(np.isfinite(gradient[k]))):
+                result.stopped = f"non-finite loss or gradient at iteration {iteration} (theta = {thetas[k].tolist()})"
                 active[k] = False
                 continue
-            c = np.exp(th_np[k])
-            f.history.append(
+            values = np.exp(thetas[k])
+            result.history.append(
                 dict(
-                    iteration=it,
-                    loss=float(loss_v[k]),
-                    C_d=float(c[0]),
-                    C_h=float(c[1]),
-                    grad=g[k].tolist(),
-                    grad_norm=float(np.linalg.norm(g[k])),
-                    residuals=r[k].tolist(),
+                    iteration=iteration,
+                    loss=float(loss_value[k]),
+                    C_d=float(values[0]),
+                    C_h=float(values[1]),
+                    grad=gradient[k].tolist(),
+                    grad_norm=float(np.linalg.norm(gradient[k])),
+                    residuals=residuals[k].tolist(),
                     evaluations=1,
                     seconds=seconds,
                 )
             )
-            if loss_v[k] < f.loss:
-                f.theta, f.loss, f.residuals = th_np[k].copy(), float(loss_v[k]), r[k].copy()
-            if loss_v[k] < tol:
-                f.stopped = f"loss {loss_v[k]:.3g} < tol {tol:g}"
+            if loss_value[k] < result.loss:
+                result.theta, result.loss, result.residuals = (
+                    thetas[k].copy(),
+                    float(loss_value[k]),
+                    residuals[k].copy(),
+                )
+            if loss_value[k] < tol:
+                result.stopped = f"loss {loss_value[k]:.3g} < tol {tol:g}"
                 active[k] = False
                 continue
-            losses = [h["loss"] for h in f.history]
+            losses = [h["loss"] for h in result.history]
             if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
-                f.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
+                result.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
                 active[k] = False
         if bar is not None:
-            b = best_start(fits)
-            bar.set_postfix_str(f"best loss={fits[b].loss:.4g} (start {b}), {int(active.sum())} active")
+            best = best_start(fits)
+            bar.set_postfix_str(f"best loss={fits[best].loss:.4g} (start {best}), {int(active.sum())} active")
             bar.update(1)
         if not active.any():
             break
         keep = jnp.asarray(active)
-        hold = lambda new, old: jnp.where(keep.reshape((K,) + (1,) * (new.ndim - 1)), new, old)
+        hold = lambda new, old: jnp.where(keep.reshape((n_starts,) + (1,) * (new.ndim - 1)), new, old)
         theta = hold(new_theta, theta)
         state = jax.tree.map(hold, new_state, state)
     if bar is not None:
         bar.close()
     seconds = time.perf_counter() - start
-    for f in fits:
-        f.seconds = seconds
+    for result in fits:
+        result.seconds = seconds
     return MultiStartResult(fits=fits, best=best_start(fits), seconds=seconds)
 
 
-def spread_starts(first, k, c_d_range, c_h_range):
+def spread_starts(first: Sequence[float], k: int, c_d_range: Sequence[float], c_h_range: Sequence[float]) -> np.ndarray:
     """k starting points (k, 2) of theta = (log C_d, log C_h): `first` (C_d, C_h), then k - 1 points
     of the Halton sequence (bases 2 and 3, unscrambled: the same points every run) over the
     log-spaced box c_d_range x c_h_range."""
     if not (isinstance(k, (int, np.integer)) and k >= 1):
         raise ValueError(f"starts = {k!r} is invalid: allowed an integer >= 1")
 
-    def halton(i, base):
+    def halton(i: int, base: int) -> float:
         f, x = 1.0, 0.0
         while i > 0:
             f /= base
@@ -391,8 +426,11 @@ def spread_starts(first, k, c_d_range, c_h_range):
     return np.stack(pts)
 
 
-def standard_errors(velocities, theta, residuals, weights=None):
-    """Gauss-Newton standard errors of theta (2,) and of (C_d, C_h) (2,), and the Jacobian (3, 2)."""
+def standard_errors(
+    velocities: Observables, theta: ArrayLike, residuals: ArrayLike, weights: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Gauss-Newton standard errors of theta (2,) and of (C_d, C_h) (2,), the Jacobian J (3, 2) and
+    the condition number of J^T W J, at theta (2,) with residuals (3,) and weights (3,) (None: 1)."""
     J = np.asarray(jax.jacfwd(velocities)(jnp.asarray(theta)))
     r = np.asarray(residuals)
     w = np.ones_like(r) if weights is None else np.asarray(weights, float)
@@ -404,11 +442,18 @@ def standard_errors(velocities, theta, residuals, weights=None):
     return se_theta, np.exp(np.asarray(theta)) * se_theta, J, float(np.linalg.cond(JtJ))
 
 
-def landscape(velocities_batch, target, c_d_values, c_h_values, weights=None):
-    """Loss (len(c_h), len(c_d)) over the grid, every point in one vmapped call."""
-    cd, ch = np.meshgrid(np.asarray(c_d_values, float), np.asarray(c_h_values, float))
-    thetas = np.log(np.stack([cd.ravel(), ch.ravel()], -1))
-    v = np.asarray(velocities_batch(thetas))
-    w = np.ones(3) if weights is None else np.asarray(weights, float)
-    loss = np.sum(w * (v - np.asarray(target)) ** 2, -1)
-    return loss.reshape(cd.shape), v.reshape(cd.shape + (3,))
+def landscape(
+    velocities_batch: Callable[[np.ndarray], ArrayLike],
+    target: ArrayLike,
+    c_d_values: ArrayLike,
+    c_h_values: ArrayLike,
+    weights: ArrayLike | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Loss (len(c_h), len(c_d)) over the grid, and the velocities (len(c_h), len(c_d), 3), every
+    point in one vmapped call of velocities_batch: thetas (B, 2) -> (B, 3) km/s."""
+    c_d_grid, c_h_grid = np.meshgrid(np.asarray(c_d_values, float), np.asarray(c_h_values, float))
+    thetas = np.log(np.stack([c_d_grid.ravel(), c_h_grid.ravel()], -1))
+    velocities = np.asarray(velocities_batch(thetas))
+    weight = np.ones(3) if weights is None else np.asarray(weights, float)
+    loss = np.sum(weight * (velocities - np.asarray(target)) ** 2, -1)
+    return loss.reshape(c_d_grid.shape), velocities.reshape(c_d_grid.shape + (3,))

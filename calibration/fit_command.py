@@ -3,13 +3,15 @@ one start or several advanced together, its standard errors, the loss landscape 
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
-from calibration import fit as F
+from calibration import fit as fitting
 from calibration import plots
 from calibration.arguments import (
     bounds,
@@ -22,10 +24,12 @@ from calibration.arguments import (
     setup_model,
     versions,
 )
-from calibration.model import theta_of
+from calibration.data import Measurements
+from calibration.fit import FitResult
+from calibration.model import CloudModel, theta_of
 
 
-def check_fit_args(args) -> tuple[float, float]:
+def check_fit_args(args: argparse.Namespace) -> tuple[float, float]:
     """The starting (C_d, C_h) of --start, after every check of fit's arguments that needs no scene."""
     start = pair(args.start, "--start")
     iterations(args.iterations)
@@ -45,12 +49,14 @@ def check_fit_args(args) -> tuple[float, float]:
     return start
 
 
-def fit_from_starts(args, model, meas, start):
+def fit_from_starts(
+    args: argparse.Namespace, model: CloudModel, meas: Measurements, start: tuple[float, float]
+) -> tuple[FitResult, list[dict[str, Any]] | None]:
     """(the fit, the starts' table or None): one fit from --start, or --starts K advanced together
     (one vmapped call), the best kept."""
     starts = None
     if args.starts == 1:
-        res = F.fit(
+        res = fitting.fit(
             model.velocities,
             meas.experiment,
             theta_of(*start),
@@ -60,8 +66,8 @@ def fit_from_starts(args, model, meas, start):
             method=args.method,
         )
     else:
-        thetas = F.spread_starts(start, args.starts, args.landscape_cd, args.landscape_ch)
-        multi = F.fit_starts(
+        thetas = fitting.spread_starts(start, args.starts, args.landscape_cd, args.landscape_ch)
+        multi = fitting.fit_starts(
             model.velocities,
             meas.experiment,
             thetas,
@@ -94,9 +100,21 @@ def fit_from_starts(args, model, meas, start):
     return res, starts
 
 
-def fit_result(args, model, meas, start, res, starts, errors, reached, land, wall) -> dict:
+def fit_result(
+    args: argparse.Namespace,
+    model: CloudModel,
+    meas: Measurements,
+    start: tuple[float, float],
+    res: FitResult,
+    starts: list[dict[str, Any]] | None,
+    errors: tuple[np.ndarray, np.ndarray, np.ndarray, float],
+    reached: float,
+    land: dict[str, list] | None,
+    wall: float,
+) -> dict[str, Any]:
     """result.json's content: the fitted values with their standard errors (errors: those of
-    `fit.standard_errors`), the residuals, the history, the starts, the landscape and the settings."""
+    `fit.standard_errors`), the residuals, the history, the starts, the landscape (land: C_d, C_h and
+    loss lists, or None), the time reached at the fit and the settings; wall: seconds."""
     se_theta, se, J, cond = errors
     c_d, c_h = res.values
     fitted = meas.experiment + res.residuals
@@ -146,7 +164,8 @@ def fit_result(args, model, meas, start, res, starts, errors, reached, land, wal
     )
 
 
-def cmd_fit(args) -> int:
+def cmd_fit(args: argparse.Namespace) -> int:
+    """`python -m calibration fit`: the fit, printed and written to --out (result.json, figures)."""
     start = check_fit_args(args)
     meas = measurements(args.data)
     out = new_folder(args.out)
@@ -158,7 +177,7 @@ def cmd_fit(args) -> int:
     )
     t0 = time.perf_counter()
     res, starts = fit_from_starts(args, model, meas, start)
-    se_theta, se, J, cond = F.standard_errors(model.velocities, res.theta, res.residuals)
+    se_theta, se, J, cond = fitting.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
     print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
     reached = model.reached(res.theta, progress=not args.no_progress)
@@ -177,7 +196,7 @@ def cmd_fit(args) -> int:
     if args.landscape >= 2:
         cds = np.geomspace(args.landscape_cd[0], args.landscape_cd[1], args.landscape)
         chs = np.geomspace(args.landscape_ch[0], args.landscape_ch[1], args.landscape)
-        loss, _ = F.landscape(
+        loss, _ = fitting.landscape(
             lambda th: model.velocities_batch(th, allow_short=True, progress=not args.no_progress),
             meas.experiment,
             cds,

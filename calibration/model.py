@@ -11,29 +11,42 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 import jaxmpm
 from jaxmpm import features
+from jaxmpm.model.params import Params
+from jaxmpm.model.scene import Scene
+from jaxmpm.model.state import State
 
 COARSE_RESOLUTION = 0.75  # the coarsest with >= 4 cells across the plate
 
 
 @dataclass(frozen=True)
 class CloudModel:
-    scene: object
-    params: object  # Params at the scene's defaults (C_d, C_h replaced by theta)
-    state: object  # initial State
+    scene: Scene
+    params: Params  # at the scene's defaults (C_d, C_h replaced by theta)
+    state: State  # initial
     n_steps: int
     t_end: float
     n_out: int = 12
     first: int = 6  # first output of the velocity fit (the later half)
 
     @staticmethod
-    def build(resolution=COARSE_RESOLUTION, fields=2, t_end=6e-6, n_out=12, max_c_h=1.0, safety=2.0, **scene_options):
+    def build(
+        resolution: float = COARSE_RESOLUTION,
+        fields: int = 2,
+        t_end: float = 6e-6,
+        n_out: int = 12,
+        max_c_h: float = 1.0,
+        safety: float = 2.0,
+        **scene_options: Any,
+    ) -> CloudModel:
         """The debris cloud at `resolution` with `fields` velocity fields (2: projectile and plate
         apart, so C_d acts). Steps: `safety` times the initial CFL estimate at C_h = max_c_h (the
         step shrinks as the cloud heats: at resolution 0.75, C_h = 1 needs ~1.6x; steps past
@@ -46,20 +59,21 @@ class CloudModel:
         )
         return CloudModel(scene, params, state, n_steps, float(t_end), n_out, n_out // 2)
 
-    def with_theta(self, theta):
-        """Params with C_d = exp(theta[0]) (with one field, no drag: ignored) and C_h = exp(theta[1])."""
-        dt = self.params.c_h.dtype
-        theta = jnp.asarray(theta, dt)
+    def with_theta(self, theta: ArrayLike) -> Params:
+        """Params with C_d = exp(theta[0]) (with one field, no drag: ignored) and C_h = exp(theta[1]);
+        theta (2,)."""
+        theta = jnp.asarray(theta, self.params.c_h.dtype)
         new = dict(c_h=jnp.exp(theta[1]))
         if self.scene.drag is not None:
             new["drag"] = jnp.exp(theta[0])
         return dataclasses.replace(self.params, **new)
 
-    def velocities_of_history(self, history):
-        """(3,) km/s, downstream positive, of points 1, 2, 4 from a history."""
+    def velocities_of_history(self, history: State) -> jax.Array:
+        """(3,) km/s, downstream positive, of points 1, 2, 4 from a history (a State with a leading
+        time axis of n_out + 1)."""
         return -features.feature_velocities(self.scene, history, first=self.first) / 1000.0
 
-    def run(self, theta, **options):
+    def run(self, theta: ArrayLike, **options: Any) -> tuple[State, State]:
         """(final, history) of the fixed-length run at theta = (log C_d, log C_h), allowed to fall
         short of t_end (see `reached`); options: simulate's checkpoint, progress."""
         return jaxmpm.simulate(
@@ -73,16 +87,16 @@ class CloudModel:
             **options,
         )
 
-    def velocities(self, theta, checkpoint="auto"):
+    def velocities(self, theta: ArrayLike, checkpoint: bool | str | None = "auto") -> jax.Array:
         """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
         return self.velocities_of_history(self.run(theta, checkpoint=checkpoint)[1])
 
-    def reached(self, theta, progress=True):
+    def reached(self, theta: ArrayLike, progress: bool = True) -> float:
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
         return float(self.run(theta, progress=progress)[0].t)
 
-    def velocities_batch(self, thetas, allow_short=False, progress=True):
+    def velocities_batch(self, thetas: ArrayLike, allow_short: bool = False, progress: bool = True) -> jax.Array:
         """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`); with
         allow_short, members that do not reach t_end give NaN instead of an error."""
         thetas = np.asarray(thetas, dtype=float)
@@ -90,7 +104,7 @@ class CloudModel:
         if self.scene.drag is not None:
             values["drag"] = np.exp(thetas[:, 0])
         batch = jaxmpm.batch.sweep(self.params, **values)
-        final, hist = jaxmpm.ensemble(
+        final, history = jaxmpm.ensemble(
             self.scene,
             batch,
             self.state,
@@ -100,12 +114,13 @@ class CloudModel:
             allow_short=allow_short,
             progress=progress,
         )
-        v = jax.vmap(self.velocities_of_history)(hist)
+        velocities = jax.vmap(self.velocities_of_history)(history)
         short = final.t < self.t_end * (1 - 1e-6)
-        return jnp.where(short[:, None], jnp.nan, v)
+        return jnp.where(short[:, None], jnp.nan, velocities)
 
 
-def theta_of(c_d, c_h):
+def theta_of(c_d: float, c_h: float) -> np.ndarray:
+    """theta = (log C_d, log C_h) (2,) of C_d > 0 and C_h > 0."""
     if not (c_d > 0 and c_h > 0):
         raise ValueError(f"C_d = {c_d!r}, C_h = {c_h!r} are invalid: allowed > 0 both (the fit works in log space)")
     return np.log([float(c_d), float(c_h)])

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from jaxmpm.io.files import atomic_write, check_new
 
+if TYPE_CHECKING:  # matplotlib loaded only when a figure is drawn (its import is slow)
+    from matplotlib.figure import Figure
 
-def _save(fig, path):
+
+def _save(fig: Figure, path: str | os.PathLike) -> Path:
+    """Write fig as a PNG at path (a new file), atomically."""
     path = Path(path)
     check_new(path)
     with atomic_write(path) as tmp:
@@ -17,18 +23,19 @@ def _save(fig, path):
     return path
 
 
-def ch_table(rows, path):
-    """Feature velocity against C_h: jaxmpm and the seed as lines, the experiment as bands."""
+def ch_table(rows: list[dict[str, Any]], path: str | os.PathLike) -> Path:
+    """Feature velocity against C_h: jaxmpm and the seed as lines, the experiment as bands. rows: dicts
+    of source ('experiment', 'seed' or 'jaxmpm'), C_h and v (3,) km/s."""
     from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     fig = Figure(figsize=(9, 3.4), layout="constrained")
     axes = fig.subplots(1, 3, sharey=True)
-    exp = next(r for r in rows if r["source"] == "experiment")["v"]
+    experiment = next(r for r in rows if r["source"] == "experiment")["v"]
     for i, (ax, point) in enumerate(zip(axes, (1, 2, 4))):
         for src, style in (("seed", "s--"), ("jaxmpm", "o-")):
-            rs = [r for r in rows if r["source"] == src]
-            ax.plot([r["C_h"] for r in rs], [r["v"][i] for r in rs], style, label=src)
-        ax.axhline(exp[i], color="k", lw=1, label="experiment")
+            source_rows = [r for r in rows if r["source"] == src]
+            ax.plot([r["C_h"] for r in source_rows], [r["v"][i] for r in source_rows], style, label=src)
+        ax.axhline(experiment[i], color="k", lw=1, label="experiment")
         ax.set_xscale("log")
         ax.set_xlabel("C_h")
         ax.set_title(f"point {point}")
@@ -37,50 +44,51 @@ def ch_table(rows, path):
     return _save(fig, path)
 
 
-def fit_report(result, out):
-    """loss history, residuals beside the seed's best, and the landscape (when computed)."""
+def fit_report(result: dict[str, Any], out: str | os.PathLike) -> list[Path]:
+    """loss history, residuals beside the seed's best, and the landscape (when computed), as PNGs in
+    out; result: the content of the fit's result.json."""
     from matplotlib.figure import Figure  # matplotlib loaded only when a figure is drawn (its import is slow)
 
     out = Path(out)
     paths = []
-    h = result["history"]
+    history = result["history"]
     fig = Figure(figsize=(8, 3.2), layout="constrained")
-    a, b = fig.subplots(1, 2)
-    a.semilogy([x["iteration"] for x in h], [x["loss"] for x in h], "o-")
-    a.set_xlabel("iteration")
-    a.set_ylabel("loss ((km/s)^2)")
-    b.plot([x["C_d"] for x in h], [x["C_h"] for x in h], "o-", ms=3)
-    b.set_xscale("log")
-    b.set_yscale("log")
-    b.set_xlabel("C_d")
-    b.set_ylabel("C_h")
-    for st in result.get("starts") or []:  # the multi-start fit: every start and where it ended
-        b.annotate(
+    loss_axes, path_axes = fig.subplots(1, 2)
+    loss_axes.semilogy([x["iteration"] for x in history], [x["loss"] for x in history], "o-")
+    loss_axes.set_xlabel("iteration")
+    loss_axes.set_ylabel("loss ((km/s)^2)")
+    path_axes.plot([x["C_d"] for x in history], [x["C_h"] for x in history], "o-", ms=3)
+    path_axes.set_xscale("log")
+    path_axes.set_yscale("log")
+    path_axes.set_xlabel("C_d")
+    path_axes.set_ylabel("C_h")
+    for start in result.get("starts") or []:  # the multi-start fit: every start and where it ended
+        path_axes.annotate(
             "",
-            (st["C_d"], st["C_h"]),
-            (st["start_C_d"], st["start_C_h"]),
-            arrowprops=dict(arrowstyle="->", color="C3" if st["best"] else "0.5", lw=0.8),
+            (start["C_d"], start["C_h"]),
+            (start["start_C_d"], start["start_C_h"]),
+            arrowprops=dict(arrowstyle="->", color="C3" if start["best"] else "0.5", lw=0.8),
         )
-    b.set_title("path" + (" (arrows: every start, red: the best)" if result.get("starts") else ""))
+    path_axes.set_title("path" + (" (arrows: every start, red: the best)" if result.get("starts") else ""))
     paths.append(_save(fig, out / "loss_history.png"))
     fig = Figure(figsize=(5, 3.2), layout="constrained")
     ax = fig.subplots()
-    pts = np.arange(3)
-    ax.bar(pts - 0.2, result["residuals_km_s"], width=0.4, label="fit")
+    points = np.arange(3)
+    ax.bar(points - 0.2, result["residuals_km_s"], width=0.4, label="fit")
     seed = np.array([6.29, 5.97, 3.92]) - np.array(result["experiment_km_s"])
-    ax.bar(pts + 0.2, seed, width=0.4, label="seed, C_h = 0.02")
+    ax.bar(points + 0.2, seed, width=0.4, label="seed, C_h = 0.02")
     ax.axhline(0, color="k", lw=0.8)
-    ax.set_xticks(pts, [f"point {p}" for p in result["points"]])
+    ax.set_xticks(points, [f"point {p}" for p in result["points"]])
     ax.set_ylabel("model - experiment (km/s)")
     ax.legend(fontsize="small")
     paths.append(_save(fig, out / "residuals.png"))
     if result.get("landscape"):
-        L = result["landscape"]
+        land = result["landscape"]
         fig = Figure(figsize=(5, 4), layout="constrained")
         ax = fig.subplots()
-        cs = ax.contourf(L["C_d"], L["C_h"], np.log10(np.asarray(L["loss"])), levels=12)
+        cs = ax.contourf(land["C_d"], land["C_h"], np.log10(np.asarray(land["loss"])), levels=12)
         fig.colorbar(cs, label="log10 loss ((km/s)^2)")
-        ax.plot([x["C_d"] for x in h], [x["C_h"] for x in h], "w.-", ms=3)
+        ax.plot([x["C_d"] for x in history], [x["C_h"] for x in history], "w.-", ms=3)
         ax.plot(result["fitted"]["C_d"], result["fitted"]["C_h"], "r*", ms=12)
         ax.set_xscale("log")
         ax.set_yscale("log")

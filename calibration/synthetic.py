@@ -23,17 +23,21 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 import jaxmpm
 from jaxmpm.materials import library_material
+from jaxmpm.model.params import Params
 from jaxmpm.model.scene import Boundary, Box, Grid, Phase, Scene
+from jaxmpm.model.state import State
 
 CELLS, H = 48, 0.25e-3  # 12 mm box
 J0, EPS_PS0, SPEED = 0.99, 0.05, 300.0
 
 
-def debris_in_water(drag=1.0, c_h=0.15, t_end=4e-6) -> Scene:
+def debris_in_water(drag: float = 1.0, c_h: float = 0.15, t_end: float = 4e-6) -> Scene:
     """The scene of the module docstring (phases: debris in field 0; water in field 1)."""
     water_box = lambda a, b: Box((a,), (b,))
     return Scene(
@@ -57,42 +61,48 @@ def debris_in_water(drag=1.0, c_h=0.15, t_end=4e-6) -> Scene:
     )
 
 
-def fragmented_precompressed(scene, params, state):
+def fragmented_precompressed(scene: Scene, params: Params, state: State) -> State:
     """The debris block at J0 (volume and F scaled; p = K0 (1 - J0) with K0 = rho0 c0^2 of the
     Mie-Grueneisen EOS, stress -p I) with plastic strain EPS_PS0, so alpha = 1 - tanh(EPS_PS0 / C_h)."""
-    sl = jaxmpm.model.state.phase_slices(scene)[0]
-    c = params.phases["debris"]
-    p0 = c["rho0"] * c["c0"] ** 2 * (1 - J0)
-    d = state.x.shape[1]
+    block = jaxmpm.model.state.phase_slices(scene)[0]
+    debris = params.phases["debris"]
+    p0 = debris["rho0"] * debris["c0"] ** 2 * (1 - J0)
+    dims = state.x.shape[1]
     return dataclasses.replace(
         state,
-        volume=state.volume.at[sl].multiply(J0),
-        F=state.F.at[sl].multiply(J0 ** (1 / d)),
-        stress=state.stress.at[sl].set(-p0 * jnp.eye(d, dtype=state.stress.dtype)),
-        pressure=state.pressure.at[sl].set(p0),
-        eps_ps=state.eps_ps.at[sl].set(EPS_PS0),
+        volume=state.volume.at[block].multiply(J0),
+        F=state.F.at[block].multiply(J0 ** (1 / dims)),
+        stress=state.stress.at[block].set(-p0 * jnp.eye(dims, dtype=state.stress.dtype)),
+        pressure=state.pressure.at[block].set(p0),
+        eps_ps=state.eps_ps.at[block].set(EPS_PS0),
     )
 
 
 @dataclass(frozen=True)
 class DebrisInWaterModel:
-    scene: object
-    params: object
-    state: object
+    """The debris_in_water scene, its default Params, its pre-compressed initial State and the
+    scan steps that reach t_end."""
+
+    scene: Scene
+    params: Params
+    state: State
     n_steps: int
 
     @staticmethod
-    def build(t_end=4e-6, safety=1.5):
+    def build(t_end: float = 4e-6, safety: float = 1.5) -> DebrisInWaterModel:
+        """The model at the default (C_d, C_h), with `safety` times the initial CFL estimate of steps."""
         scene = debris_in_water(t_end=t_end)
         params = jaxmpm.default_params(scene)
         state = fragmented_precompressed(scene, params, jaxmpm.init_state(scene, params))
         return DebrisInWaterModel(scene, params, state, jaxmpm.plan_steps(scene, params, state, t_end, safety=safety))
 
-    def with_theta(self, theta):
+    def with_theta(self, theta: ArrayLike) -> Params:
+        """Params with C_d = exp(theta[0]) and C_h = exp(theta[1]); theta (2,)."""
         theta = jnp.asarray(theta, self.params.c_h.dtype)
         return dataclasses.replace(self.params, drag=jnp.exp(theta[0]), c_h=jnp.exp(theta[1]))
 
-    def final(self, theta):
+    def final(self, theta: ArrayLike) -> State:
+        """The State at t_end of the run at theta = (log C_d, log C_h)."""
         final, _ = jaxmpm.simulate(
             self.scene,
             self.with_theta(theta),
@@ -104,12 +114,12 @@ class DebrisInWaterModel:
         )
         return final
 
-    def observables(self, theta):
+    def observables(self, theta: ArrayLike) -> jax.Array:
         """(3,) the observables of the module docstring at theta = (log C_d, log C_h). Differentiable."""
-        f = self.final(theta)
-        sl = jaxmpm.model.state.phase_slices(self.scene)[0]
-        m, x, v = f.mass[sl], f.x[sl, 0], f.v[sl, 0]
-        M = jnp.sum(m)
-        xm = jnp.sum(m * x) / M
-        spread = jnp.sqrt(jnp.sum(m * (x - xm) ** 2) / M)
-        return jnp.stack([jnp.sum(m * v) / M / 100.0, spread * 1e3, M / jnp.sum(f.volume[sl]) / 1000.0])
+        final = self.final(theta)
+        block = jaxmpm.model.state.phase_slices(self.scene)[0]
+        m, x, v = final.mass[block], final.x[block, 0], final.v[block, 0]  # (N_block,) kg, m, m/s
+        mass = jnp.sum(m)
+        centre = jnp.sum(m * x) / mass
+        spread = jnp.sqrt(jnp.sum(m * (x - centre) ** 2) / mass)
+        return jnp.stack([jnp.sum(m * v) / mass / 100.0, spread * 1e3, mass / jnp.sum(final.volume[block]) / 1000.0])

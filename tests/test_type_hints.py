@@ -9,7 +9,6 @@ import pkgutil
 from collections.abc import Callable, Iterator
 from types import ModuleType
 
-import pytest
 
 import calibration
 import jaxmpm
@@ -76,7 +75,6 @@ def test_the_check_finds_a_missing_annotation():
     assert unannotated(bare) == ["x", "args", "kwargs", "return"]
 
 
-@pytest.mark.xfail(strict=True, reason="calibration/ still lacks type hints (43 public functions)")
 def test_every_public_function_is_annotated():
     checked, missing = 0, []
     for module in public_modules():
