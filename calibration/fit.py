@@ -29,10 +29,8 @@ import optax
 from jax.typing import ArrayLike
 from tqdm.auto import tqdm
 
+from calibration.fit_checks import METHODS as METHODS, Observables, check_arrays, check_options, check_starts
 from jaxmpm.numerics.compile import jit
-
-# theta (2,) -> observables (3,) km/s (or any shape): the forward model the fit differentiates
-Observables = Callable[[jax.Array], jax.Array]
 
 
 def loss_fn(
@@ -68,9 +66,6 @@ class FitResult:
     def values(self) -> np.ndarray:
         """(2,) the best (C_d, C_h) = exp(theta)."""
         return np.exp(self.theta)
-
-
-METHODS = ("adam", "lbfgs")
 
 
 def _optax_update(
@@ -115,84 +110,6 @@ def _lbfgs_step(loss: Callable) -> tuple[Callable, Callable]:
     return opt.init, step
 
 
-def _real(value: Any) -> float:
-    """value as a float; nan where it is not a real number (a string, an array of several)."""
-    if isinstance(value, (str, bytes)):
-        return np.nan
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return np.nan
-
-
-def _float_array(value: Any) -> np.ndarray | None:
-    """value as a float array; None where it is not numeric."""
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return None
-
-
-def _require(ok: bool, name: str, value: Any, allowed: str) -> None:
-    """A ValueError naming the argument, its value and what is allowed, unless ok."""
-    if not ok:
-        raise ValueError(f"{name} = {value!r} is invalid: allowed {allowed}")
-
-
-def check_options(
-    iterations: int, learning_rate: float, decay: float, tol: float, rtol: float, patience: int, method: str
-) -> None:
-    """Refuse out-of-range scalar options of `fit` (ValueError naming the option and its range)."""
-    integer = lambda x: isinstance(x, (int, np.integer)) and not isinstance(x, bool)
-    _require(integer(iterations) and iterations >= 1, "iterations", iterations, "an integer >= 1")
-    _require(method in METHODS, "method", method, " | ".join(METHODS))
-    rate, factor, absolute, relative = _real(learning_rate), _real(decay), _real(tol), _real(rtol)
-    _require(
-        np.isfinite(rate) and rate > 0, "learning_rate", learning_rate, "a finite number > 0 (Adam's step in log space)"
-    )
-    _require(
-        0 < factor <= 1, "decay", decay, "a number in (0, 1] (the learning rate's factor per iteration; 1: constant)"
-    )
-    _require(np.isfinite(absolute) and absolute >= 0, "tol", tol, "a finite number >= 0 (km/s)^2")
-    _require(np.isfinite(relative) and relative >= 0, "rtol", rtol, "a finite number >= 0")
-    _require(integer(patience) and patience >= 1, "patience", patience, "an integer >= 1")
-
-
-def check_arrays(
-    velocities: Observables, target: ArrayLike, theta0: ArrayLike, weights: ArrayLike | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(target, theta0, weights) as float arrays, checked: theta0 finite (2,); target finite, of the
-    shape of velocities(theta0) (found by tracing, without running it); weights None or finite,
-    >= 0, not all 0, of target's shape. ValueError naming the argument otherwise."""
-    start = _float_array(theta0)
-    _require(
-        start is not None and start.shape == (2,) and np.all(np.isfinite(start)),
-        "theta0",
-        theta0,
-        "finite numbers of shape (2,): (log C_d, log C_h)",
-    )
-    measured = _float_array(target)
-    _require(measured is not None and np.all(np.isfinite(measured)), "target", target, "finite numbers (km/s)")
-    shape = jax.eval_shape(velocities, jnp.asarray(start, jnp.zeros(()).dtype)).shape
-    if measured.shape != shape:
-        raise ValueError(
-            f"target of shape {measured.shape} is invalid: allowed the shape of velocities(theta0), {shape}"
-        )
-    if weights is None:
-        return measured, start, None
-    weight = _float_array(weights)
-    _require(
-        weight is not None
-        and weight.shape == measured.shape
-        and np.all(np.isfinite(weight) & (weight >= 0))
-        and np.any(weight > 0),
-        "weights",
-        weights,
-        f"None or finite numbers >= 0, not all 0, of target's shape {measured.shape}",
-    )
-    return measured, start, weight
-
-
 def fit(
     velocities: Observables,
     target: ArrayLike,
@@ -211,7 +128,6 @@ def fit(
     velocities: theta (2,) -> (3,) km/s (or any observables), differentiable; target: of its shape.
     learning_rate > 0 and decay in (0, 1] (Adam's rate at iteration k: learning_rate * decay^k);
     weights: None (all 1) or >= 0 of target's shape. Bad arguments raise ValueError before any run."""
-    # longer than 60 lines on purpose: one optimiser loop (Adam or L-BFGS) with its stopping tests and history
     check_options(iterations, learning_rate, decay, tol, rtol, patience, method)
     target, theta0, weights = check_arrays(velocities, target, theta0, weights)
     loss = loss_fn(velocities, target, weights)
@@ -235,31 +151,15 @@ def fit(
                 f"non-finite loss or gradient at iteration {iteration} (theta = {np.asarray(theta).tolist()})"
             )
             break
-        values = np.exp(np.asarray(theta))
-        result.history.append(
-            dict(
-                iteration=iteration,
-                loss=loss_value,
-                C_d=float(values[0]),
-                C_h=float(values[1]),
-                grad=gradient.tolist(),
-                grad_norm=float(np.linalg.norm(gradient)),
-                residuals=np.asarray(residuals).tolist(),
-                evaluations=evaluations,
-                seconds=time.perf_counter() - t0,
-            )
-        )
-        if loss_value < result.loss:
-            result.theta, result.loss, result.residuals = np.asarray(theta), loss_value, np.asarray(residuals)
+        theta_np, residuals = np.asarray(theta), np.asarray(residuals)
+        _record(result, iteration, theta_np, loss_value, gradient, residuals, evaluations, time.perf_counter() - t0)
         if bar is not None:
-            bar.set_postfix_str(f"loss={loss_value:.4g} C_d={values[0]:.4g} C_h={values[1]:.4g}")
+            entry = result.history[-1]
+            bar.set_postfix_str(f"loss={loss_value:.4g} C_d={entry['C_d']:.4g} C_h={entry['C_h']:.4g}")
             bar.update(1)
-        if loss_value < tol:
-            result.stopped = f"loss {loss_value:.3g} < tol {tol:g}"
-            break
-        losses = [h["loss"] for h in result.history]
-        if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
-            result.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
+        reason = _stop_reason(result.history, loss_value, tol, rtol, patience)
+        if reason:
+            result.stopped = reason
             break
         theta, state = new_theta, new_state
     if bar is not None:
@@ -268,20 +168,45 @@ def fit(
     return result
 
 
-def check_starts(theta0s: ArrayLike) -> np.ndarray:
-    """theta0s as a float array (K, 2) of finite starting points, K >= 1; ValueError otherwise."""
-    starts = _float_array(theta0s)
-    _require(
-        starts is not None
-        and starts.ndim == 2
-        and starts.shape[0] >= 1
-        and starts.shape[1] == 2
-        and np.all(np.isfinite(starts)),
-        "theta0s",
-        theta0s,
-        "finite numbers of shape (K, 2), K >= 1: K starting points (log C_d, log C_h)",
+def _record(
+    result: FitResult,
+    iteration: int,
+    theta: np.ndarray,
+    loss: float,
+    gradient: np.ndarray,
+    residuals: np.ndarray,
+    evaluations: int,
+    seconds: float,
+) -> None:
+    """Append an iteration at theta (2,) to result.history (gradient (2,), residuals (3,)), and keep
+    theta, its loss and residuals as the result where the loss is the lowest yet."""
+    values = np.exp(theta)
+    result.history.append(
+        dict(
+            iteration=iteration,
+            loss=loss,
+            C_d=float(values[0]),
+            C_h=float(values[1]),
+            grad=gradient.tolist(),
+            grad_norm=float(np.linalg.norm(gradient)),
+            residuals=residuals.tolist(),
+            evaluations=evaluations,
+            seconds=seconds,
+        )
     )
-    return starts
+    if loss < result.loss:
+        result.theta, result.loss, result.residuals = theta, loss, residuals
+
+
+def _stop_reason(history: list[dict[str, Any]], loss: float, tol: float, rtol: float, patience: int) -> str:
+    """Why a fit stops after the iteration of `loss` ('' where it goes on): the loss fell below tol,
+    or it changed by less than rtol relative over the last `patience` iterations of history."""
+    if loss < tol:
+        return f"loss {loss:.3g} < tol {tol:g}"
+    losses = [entry["loss"] for entry in history]
+    if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
+        return f"loss changed by < {rtol:g} relative over {patience} iterations"
+    return ""
 
 
 @dataclass
@@ -358,33 +283,11 @@ def fit_starts(
                 result.stopped = f"non-finite loss or gradient at iteration {iteration} (theta = {thetas[k].tolist()})"
                 active[k] = False
                 continue
-            values = np.exp(thetas[k])
-            result.history.append(
-                dict(
-                    iteration=iteration,
-                    loss=float(loss_value[k]),
-                    C_d=float(values[0]),
-                    C_h=float(values[1]),
-                    grad=gradient[k].tolist(),
-                    grad_norm=float(np.linalg.norm(gradient[k])),
-                    residuals=residuals[k].tolist(),
-                    evaluations=1,
-                    seconds=seconds,
-                )
-            )
-            if loss_value[k] < result.loss:
-                result.theta, result.loss, result.residuals = (
-                    thetas[k].copy(),
-                    float(loss_value[k]),
-                    residuals[k].copy(),
-                )
-            if loss_value[k] < tol:
-                result.stopped = f"loss {loss_value[k]:.3g} < tol {tol:g}"
-                active[k] = False
-                continue
-            losses = [h["loss"] for h in result.history]
-            if len(losses) > patience and abs(losses[-1 - patience] - losses[-1]) <= rtol * losses[-1 - patience]:
-                result.stopped = f"loss changed by < {rtol:g} relative over {patience} iterations"
+            value = float(loss_value[k])
+            _record(result, iteration, thetas[k].copy(), value, gradient[k], residuals[k].copy(), 1, seconds)
+            reason = _stop_reason(result.history, value, tol, rtol, patience)
+            if reason:
+                result.stopped = reason
                 active[k] = False
         if bar is not None:
             best = best_start(fits)

@@ -140,27 +140,40 @@ def fit_result(
         history=res.history,
         starts=starts,
         landscape=land,
-        settings=dict(
-            resolution=args.resolution,
-            fields=args.fields,
-            fragmentation=args.fragmentation,
-            drag_heating=args.drag_heating,
-            artificial_viscosity=list(args.artificial_viscosity),
-            t_end=model.t_end,
-            n_steps=model.n_steps,
-            particles=int(model.state.x.shape[0]),
-            start=list(start),
-            starts=args.starts,
-            iterations=args.iterations,
-            method=args.method,
-            evaluations=res.evaluations,
-            learning_rate=args.learning_rate,
-            float32=args.float32,
-            data=meas.source,
-            wall_seconds=wall,
-            argv=sys.argv,
-        ),
+        settings=fit_settings(args, model, meas, start, res, wall),
         versions=versions(),
+    )
+
+
+def fit_settings(
+    args: argparse.Namespace,
+    model: CloudModel,
+    meas: Measurements,
+    start: tuple[float, float],
+    res: FitResult,
+    wall: float,
+) -> dict[str, Any]:
+    """result.json's settings: the scene's and the fit's options, the steps, the particles, the
+    data file, the wall time (s) and the command line."""
+    return dict(
+        resolution=args.resolution,
+        fields=args.fields,
+        fragmentation=args.fragmentation,
+        drag_heating=args.drag_heating,
+        artificial_viscosity=list(args.artificial_viscosity),
+        t_end=model.t_end,
+        n_steps=model.n_steps,
+        particles=int(model.state.x.shape[0]),
+        start=list(start),
+        starts=args.starts,
+        iterations=args.iterations,
+        method=args.method,
+        evaluations=res.evaluations,
+        learning_rate=args.learning_rate,
+        float32=args.float32,
+        data=meas.source,
+        wall_seconds=wall,
+        argv=sys.argv,
     )
 
 

@@ -23,7 +23,7 @@ from jaxmpm.io.files import remove_stale_temporaries
 from jaxmpm.io.plot import plot_run
 from jaxmpm.io.scenefile import parse_value
 from jaxmpm.model.memory import check_run_memory
-from jaxmpm.model.state import phase_slices
+from jaxmpm.model.state import State, phase_slices
 from jaxmpm.run import compile_cache, restart
 from jaxmpm.run.driver import interrupt_on
 from jaxmpm.run.restart import dtype
@@ -197,8 +197,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run(args) -> int:
-    # the run command's steps in order, each a few lines that read and set the same names (paths,
-    # the scene, its Params, the history): split further, they would pass most of them around
+    # longer than 60 lines on purpose: the run command's steps in order, each a few lines that read and set the
+    # same names (paths, the scene, its Params, the history): split further, they would pass most of them around
     path = None
     if args.resume:
         path = _resume_file(args.resume)
@@ -216,12 +216,8 @@ def _run(args) -> int:
     h5, png = out / f"{scene.name}.h5", out / f"{scene.name}.png"
     xdmf = io.xdmf_path(h5)
     rfile = out / f"{scene.name}.restart.h5"
-    if not args.resume and not args.overwrite and rfile.is_file() and not h5.exists():
-        raise FileExistsError(
-            f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
-            f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
-            "(which discards it)"
-        )
+    if not args.resume and not args.overwrite:
+        _check_no_interrupted_run(scene, out, h5, rfile)
     _remove_stale_temporaries(out)
     io.check_new(h5, xdmf, png, *(() if args.resume else (rfile,)), overwrite=args.overwrite)
     wall = time.perf_counter()
@@ -240,20 +236,9 @@ def _run(args) -> int:
         params = jaxmpm.default_params(scene)
         _check_size(scene, n_out, args.x64)
         state = initial_state(scene, params)
-        phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
-        print(
-            f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
-            f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
-            f"{state.x.dtype}, into {h5}",
-            flush=True,
-        )
+        print(run_header(scene, state, t_end, n_out, h5), flush=True)
         start = diagnostics.summary(scene, params, state)
-        itemsize = state.x.dtype.itemsize
-        io.check_space(
-            out,
-            io.estimate_bytes(scene, state.x.shape[0], n_out + 1, itemsize)
-            + (io.estimate_bytes(scene, state.x.shape[0], n_out + 2, itemsize) if args.restart_every else 0),
-        )
+        io.check_space(out, output_bytes(scene, state, n_out, bool(args.restart_every)))
         try:
             final, history = jaxmpm.simulate(
                 scene,
@@ -293,6 +278,36 @@ def _run(args) -> int:
         scene, start, end, wall, (h5, xdmf, png) + ((rfile,) if args.restart_every and not args.resume else ())
     )
     return 0
+
+
+def _check_no_interrupted_run(scene: Scene, out: Path, h5: Path, rfile: Path) -> None:
+    """FileExistsError where `out` holds the restart file `rfile` of an unfinished run (no `h5` yet)."""
+    if rfile.is_file() and not h5.exists():
+        raise FileExistsError(
+            f"{rfile} exists: a run of {scene.name} into {out} was interrupted or failed; continue an "
+            f"interrupted run with `jaxmpm run --resume {out}`, or pass --overwrite to start again "
+            "(which discards it)"
+        )
+
+
+def run_header(scene: Scene, state: State, t_end: float, n_out: int, h5: Path) -> str:
+    """The line `jaxmpm run` prints before a new run: the scene, its grid, particles, phases, end
+    time, outputs, precision and output file."""
+    phases = f"{len(scene.phases)} phase{'s' if len(scene.phases) > 1 else ''}"
+    return (
+        f"{scene.name}: {scene.dim}D, grid {'x'.join(map(str, scene.grid.cells))} (h = {scene.grid.h:g} m), "
+        f"{state.x.shape[0]} particles in {phases}, to t = {t_end:g} s with {n_out} outputs, "
+        f"{state.x.dtype}, into {h5}"
+    )
+
+
+def output_bytes(scene: Scene, state: State, n_out: int, restart: bool) -> int:
+    """Bytes a run of `state` with n_out outputs writes: its HDF5 file (n_out + 1 states) and, with
+    a restart file, that file (up to n_out + 2 states)."""
+    particles, itemsize = state.x.shape[0], state.x.dtype.itemsize
+    return io.estimate_bytes(scene, particles, n_out + 1, itemsize) + (
+        io.estimate_bytes(scene, particles, n_out + 2, itemsize) if restart else 0
+    )
 
 
 def scene_and_folder(args: argparse.Namespace, path: Path | None) -> tuple[Scene, Path]:

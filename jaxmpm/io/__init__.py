@@ -25,6 +25,9 @@ final name. `read` and `summary` check the layout: a file that is not one `write
 ValueError naming it and what is missing.
 """
 
+# longer than 400 lines on purpose: the HDF5/XDMF layout's writer and reader side by side (write, read and summary
+# share its names and checks) below the docstring that documents the layout
+
 from __future__ import annotations
 
 import dataclasses

@@ -37,6 +37,9 @@ A geometry is { type = "box", lo, hi }, { type = "sphere", center, radius } or
 { type = "difference", base = <box or sphere>, minus = [<geometries>] } (the base outside the others).
 """
 
+# longer than 400 lines on purpose: the scene file's whole format, read (scene_from_dict) and written
+# (scene_to_dict, scene_to_toml) in one place, so that the two stay each other's inverse
+
 from __future__ import annotations
 
 import json

@@ -73,6 +73,9 @@ from jaxmpm.materials.strength import (
 
 def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
     """The Model of 'eos[+strength][+failure...]'."""
+    # longer than 60 lines on purpose: the material update is a closure over the chosen EOS, strength and failure
+    # parts (one compiled branch per composition); written apart, its dozen intermediate values (trial stress,
+    # energy solve, damage) would be passed around
     constants = dict(EOS[eos].constants)
     for part in ([STRENGTH[strength]] if strength else []) + [FAILURE[f] for f in failure]:
         constants.update(part.constants)

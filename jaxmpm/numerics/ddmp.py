@@ -17,6 +17,9 @@ unrolled sums of slices (the fastest forward); their tangents, which reverse mod
 reductions when traced for `jaxmpm.jit` (`compile.bilinear_contraction`).
 """
 
+# longer than 400 lines on purpose: one method (DDMP): the cell integrals, the windows of the grid they act on, and
+# the nodal forces and velocity gradient built from them, which share the cell tensors
+
 from __future__ import annotations
 
 import functools

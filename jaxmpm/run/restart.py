@@ -239,6 +239,20 @@ def _driver(a, path) -> dict:
     return r
 
 
+def _read_scene(f: h5py.File, path: str | os.PathLike) -> Scene:
+    """The Scene of a restart file's /scene (TOML text); ValueError naming the file where it is not
+    TOML text or not a valid scene."""
+    where = os.fspath(path)
+    try:
+        text = f["scene"].asstr()[()]
+    except (TypeError, ValueError, OSError) as e:
+        raise _incomplete(path, f"/scene is not TOML text ({e})") from None
+    try:
+        return scene_from_dict(parse_toml(text, f"{where}:/scene"))
+    except ValueError as e:
+        raise ValueError(e if str(e).startswith(where) else f"{where}:/scene: {e}") from None
+
+
 def load(path: str | os.PathLike) -> dict:
     """Read a restart file: {scene, params, state, history, t0, t_end, n_out, next_out, chunk, dt}.
 
@@ -250,14 +264,7 @@ def load(path: str | os.PathLike) -> dict:
     """
     where = os.fspath(path)
     with _open(path) as f:
-        try:
-            text = f["scene"].asstr()[()]
-        except (TypeError, ValueError, OSError) as e:
-            raise _incomplete(path, f"/scene is not TOML text ({e})") from None
-        try:
-            scene = scene_from_dict(parse_toml(text, f"{where}:/scene"))
-        except ValueError as e:
-            raise ValueError(e if str(e).startswith(where) else f"{where}:/scene: {e}") from None
+        scene = _read_scene(f, path)
         drv = _driver(f.attrs, path)
         p_dtype, s_dtype = _dtypes(f, path)
         if np.float64 in (p_dtype, s_dtype) and not jax.config.jax_enable_x64:

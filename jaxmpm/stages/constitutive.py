@@ -72,6 +72,8 @@ def constitutive(
     model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
     values, sigma_f the stress the grid sees), plastic strain and damage. Returns a `ConstitutiveUpdate`
     (the new values of those State fields)."""
+    # longer than 60 lines on purpose: stage 5 in its order (the closure's volume rate, E4; the artificial
+    # viscosity; each phase's model; the tensile fragments), each step reading the arrays of the ones before
     scene = layout.scene
     d = L.shape[-1]
     L_mat, rate = L, jnp.trace(L, axis1=1, axis2=2)
