@@ -377,8 +377,11 @@ def test_two_field_dam_break_starts_without_gaining_energy():
 
 @pytest.mark.slow
 def test_two_field_dam_break_collapses_without_gaining_energy():
-    """The same to T = 2 (t = 0.108 s, 21,500 steps of 5e-6 s; about 8 minutes on a loaded 2-core
-    CPU): the issue's energy bound and speed bound, and the front moving."""
+    """The same at 10 cells per a (dt = 5e-6 s) to T = 2 (t = 0.108 s, 21,541 steps; about 10
+    minutes on a loaded 2-core CPU): the issue's energy bound and speed bound, and the front moving.
+    Measured: the energy falls monotonically, -2.6e-3 m g a by T = 2; the fastest water particle
+    at 0.96x, the fastest air particle at 1.5x the free-fall speed from the column's top; the front
+    at Z = 2.57."""
     T, dE, above, Z, vmax = two_field_dam_break(10, 2.0, 10)
     assert np.all(np.isfinite(dE))
     assert above.max() < 5e-3, above
