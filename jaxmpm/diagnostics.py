@@ -59,11 +59,21 @@ def strain_energy(scene: Scene, params: Params, state: State) -> jax.Array | flo
     return total
 
 
+def surroundings_energy(state: State, ambient_pressure: ArrayLike) -> jax.Array:
+    """p_a sum_p V_p, J (per unit depth, area or radian as `kinetic_energy`): the work the material
+    would do against surroundings at the pressure p_a (Pa) to take its volume (Scene.ambient_pressure:
+    they do -p_a dV/dt on it)."""
+    return ambient_pressure * jnp.sum(state.volume)
+
+
 def total_energy(scene: Scene, params: Params, state: State) -> jax.Array:
-    """Kinetic + internal (+ gravitational where the scene has gravity), J."""
+    """Kinetic + internal (+ gravitational where the scene has gravity, + p_a V where it has an
+    ambient pressure p_a: `surroundings_energy`), J."""
     e = kinetic_energy(state) + internal_energy(state)
     if scene.gravity is not None:
         e = e + gravitational_energy(state, params.gravity)
+    if scene.ambient_pressure is not None:
+        e = e + surroundings_energy(state, params.ambient_pressure)
     return e
 
 

@@ -34,6 +34,7 @@ EFFECTS = {
     "gravity_ramp": (dict(gravity=(0.0, -9.81), gravity_ramp=0.1), lambda p: p.gravity_ramp),
     "damping": (dict(damping=0.5), lambda p: p.damping),
     "body_force": (dict(body_force=True), lambda p: p.body_force["disk_a"]),
+    "ambient_pressure": (dict(ambient_pressure=101325.0), lambda p: p.ambient_pressure),
 }
 
 

@@ -4,7 +4,8 @@ A scene file has the top-level keys name, description, shape, transfer, cfl, t_e
 axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
 origin), [boundary] (x_lo ... z_hi: "free", "slip", "separating" or "fixed"; layers), [effects] (gravity,
 gravity_ramp, damping, body_force, drag, drag_length, linear_drag, drag_heating,
-interface_forces, continuity, c_h, fragmentation, artificial_viscosity, density_diffusion), [output] (n_out),
+interface_forces, continuity, c_h, fragmentation, artificial_viscosity, density_diffusion,
+ambient_pressure), [output] (n_out),
 [materials.<key>] and [[phase]] (name, material, geometry, velocity, field, ppc, fraction).
 Unknown keys are errors, never ignored; every error is a ValueError naming the field (and the
 line, for malformed TOML).
@@ -89,6 +90,7 @@ EFFECT_KEYS = (
     "fragmentation",
     "artificial_viscosity",
     "density_diffusion",
+    "ambient_pressure",
 )
 OUTPUT_KEYS = ("n_out",)
 PHASE_KEYS = ("name", "material", "geometry", "velocity", "field", "ppc", "fraction")
@@ -211,7 +213,16 @@ def scene_from_dict(d: Mapping) -> Scene:
     if "gravity" in e:
         grav = e["gravity"]
         kw["gravity"] = tuple(grav) if isinstance(grav, list) else grav
-    for k in ("gravity_ramp", "damping", "drag", "drag_length", "linear_drag", "c_h", "density_diffusion"):
+    for k in (
+        "gravity_ramp",
+        "damping",
+        "drag",
+        "drag_length",
+        "linear_drag",
+        "c_h",
+        "density_diffusion",
+        "ambient_pressure",
+    ):
         if k in e:
             kw[k] = _typed(e[k], (int, float), f"effects.{k}", "a number")
     if "fragmentation" in e:
@@ -261,7 +272,7 @@ def scene_to_dict(scene: Scene) -> dict:
         e["damping"] = scene.damping
     if scene.body_force:
         e["body_force"] = True
-    for k in ("drag", "drag_length", "linear_drag", "c_h"):
+    for k in ("drag", "drag_length", "linear_drag", "c_h", "ambient_pressure"):
         if getattr(scene, k) is not None:
             e[k] = getattr(scene, k)
     if scene.drag_heating:

@@ -15,6 +15,7 @@ of its effects, are all built from `NUMBERS`: a number is added (or its range ch
     linear_drag           kg/(m^3 s)   >= 0           0: K_lin of the linear drag term
     c_h                   -            > 0            1: C_h of the closure (E5)
     artificial_viscosity  -            >= 0, (2,)     (0, 0): (c_linear, c_quadratic) of the shock viscosity
+    ambient_pressure      Pa           >= 0           0: the pressure of the surroundings (the stress gauge)
 
 The names these numbers had in `Params` before (`drag_coefficient`, `av_linear`, `av_quadratic`)
 are in `OLD_NAMES`: they still work for one release, with a DeprecationWarning naming the new one.
@@ -151,6 +152,7 @@ NUMBERS: tuple[Number, ...] = (
         switch="viscosity",
         off="artificial viscosity",
     ),
+    Number("ambient_pressure", "Pa", low=0.0, off="ambient pressure"),
 )
 BY_NAME = {n.name: n for n in NUMBERS}
 

@@ -3,7 +3,8 @@
     params.phases[phase_name][constant]   material constants of each phase (SI; see Material)
     params.body_force[phase_name]         (d,) m/s^2 body acceleration (only if scene.body_force)
     params.gravity, gravity_ramp, damping, cfl, drag, drag_length, linear_drag, c_h,
-    artificial_viscosity                  the numbers of the scene's effects: their units, allowed
+    artificial_viscosity, ambient_pressure
+                                          the numbers of the scene's effects: their units, allowed
                                           ranges and defaults are the table of jaxmpm.model.numbers
                                           (gravity and body_force are (d,), artificial_viscosity is
                                           (2,) = (c_linear, c_quadratic), the others are numbers)
@@ -49,6 +50,7 @@ class Params:
     linear_drag: jax.Array
     c_h: jax.Array
     artificial_viscosity: jax.Array
+    ambient_pressure: jax.Array
 
     def __init__(self, **fields):
         for old in [k for k in fields if k in OLD_NAMES]:

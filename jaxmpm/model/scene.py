@@ -135,6 +135,17 @@ class Scene:
         delta-SPH term on the grid: each particle's specific volume relaxes to its phase's local
         average at the rate delta c / h; jaxmpm.stages.density_diffusion). It removes DDMP's
         particle pressure noise and dissipates: docs/verification.md.
+      ambient_pressure: the pressure of the surroundings p_a (Pa, >= 0), or None (default: 0 Pa,
+        nothing traced). The void around the material holds p_a, so the grid sees every particle's
+        stress as the gauge stress sigma + p_a I and the fields' common pressure as p - p_a (E2:
+        a uniform pressure has no divergence inside the material, and the surroundings' p_a
+        cancels its traction at a free surface; walls take theirs): a body at p_a beside the
+        void stays at rest, and the force of the particles' own pressure no longer depends, in
+        proportion to p_a, on where they sit in their cells. Why: a gas at an ambient pressure
+        in a box grows from round-off with the absolute stress (air at 1 atm, 16 x 16 cells of
+        5.7 mm, DDMP: from 1e-9 to 21 m/s in 2 ms), not with the gauge (docs/limitations.md).
+        The conserved energy then holds the surroundings' p_a sum_p V_p (`diagnostics.total_energy`).
+        Not with the closure (effects.c_h), whose fragments relax to the pressure of the void.
       axisymmetric: 2D axisymmetric (r, z) geometry (PHYSICS 2.3): axis 0 is the radius r >= 0
         (grid.origin[0] >= 0), axis 1 the axial coordinate z. Volumes and masses are per radian
         (V = r dr dz), the stress has a hoop component (stress and F are 3x3, the third axis theta)
@@ -171,6 +182,7 @@ class Scene:
     fragmentation: str = "failed"
     artificial_viscosity: tuple[float, float] | None = None
     density_diffusion: float = DENSITY_DIFFUSION
+    ambient_pressure: float | None = None
     axisymmetric: bool = False
     boundary: Boundary = field(default_factory=Boundary)
     cfl: float = 0.3

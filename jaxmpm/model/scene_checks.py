@@ -207,6 +207,12 @@ def check_couplings(scene: Scene) -> None:
         )
     if scene.fragmentation not in FRAGMENTATION:
         fail("effects.fragmentation", scene.fragmentation, " | ".join(repr(f) for f in FRAGMENTATION))
+    if scene.has_closure and scene.ambient_pressure is not None:
+        fail(
+            "effects.ambient_pressure",
+            scene.ambient_pressure,
+            "unset (None) with the closure (effects.c_h): its fragments relax to the pressure of the void (E8)",
+        )
     if scene.has_closure and scene.transfer == "apic":
         fail("effects.c_h", scene.c_h, "only with the musl / seed updates (not with transfer = 'apic')")
     if scene.n_fields > 1 and (scene.shape == "bspline2" or scene.transfer == "apic"):

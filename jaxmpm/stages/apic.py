@@ -28,6 +28,7 @@ from jaxmpm.numerics.transfer import (
     stencil_outer,
 )
 from jaxmpm.stages import fields
+from jaxmpm.stages.ambient import gauge_stress
 from jaxmpm.stages.constitutive import constitutive
 from jaxmpm.stages.layout import STAGES, apply_walls, mass_floor
 from jaxmpm.stages.particle_to_grid import body_acceleration
@@ -54,7 +55,8 @@ def apic_update(layout: Layout, params: Params, state: State, dt: jax.Array) -> 
         )
     m, V = state.mass, state.volume
     with jax.named_scope(STAGES[1]):
-        affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * state.stress  # MLS force folded in
+        sig = gauge_stress(layout, params, state.stress)
+        affine = (m[:, None, None] * state.C) - dt * dinv * V[:, None, None] * sig  # MLS force folded in
         mv = m[:, None] * state.v
         acc_p = body_acceleration(layout, params, state)
         if acc_p is not None:

@@ -22,6 +22,7 @@ from jaxmpm.numerics import ddmp
 from jaxmpm.numerics.shapes import Stencil
 from jaxmpm.numerics.transfer import interpolate
 from jaxmpm.stages import fields
+from jaxmpm.stages.ambient import absolute_pressure, gauge_pressure
 from jaxmpm.stages.closure import grid_pressure
 from jaxmpm.stages.layout import Layout
 from jaxmpm.stages.nodal import NodalSums, node_volume, particle_radius, pressure_parts, scatter_named
@@ -29,9 +30,11 @@ from jaxmpm.stages.phase_models import bulk_modulus_and_wave_speed
 
 
 def phase_pressure_and_compressibility(layout: Layout, params: Params, state: State) -> tuple[jax.Array, jax.Array]:
-    """(N,) particle pressure the grid sees (Pa; with the closure, `closure.grid_pressure`) and
-    compressibility kappa = 1 / K (1/Pa)."""
-    return grid_pressure(layout, params, state), 1.0 / bulk_modulus_and_wave_speed(layout, params, state)[0]
+    """(N,) particle pressure the grid sees (Pa; with the closure, `closure.grid_pressure`; with an
+    ambient pressure p_a, the gauge pressure p - p_a, `ambient.gauge_pressure`) and compressibility
+    kappa = 1 / K (1/Pa)."""
+    p = gauge_pressure(layout, params, grid_pressure(layout, params, state))
+    return p, 1.0 / bulk_modulus_and_wave_speed(layout, params, state)[0]
 
 
 def interface_force(
@@ -65,9 +68,8 @@ def interface_force(
             return fields.safe_div(transpose(v)[0], state.volume, 0.0)
     else:
         mom, volume_rate = sums.pressure_moments, None
-        I = interface_force_of_pressure(
-            layout, stencils, beta, state, sums, operators, m_min, nodal_common_pressure(layout, sums, mom, dtype)
-        )
+        p_n = nodal_common_pressure(layout, params, sums, mom, dtype)
+        I = interface_force_of_pressure(layout, stencils, beta, state, sums, operators, m_min, p_n)
     p_amb = None
     if layout.scene.has_closure and layout.ambient_by_field:
         p_amb = fields.ambient_pressure(*_pressure_inputs(layout, sums, mom, dtype))
@@ -124,15 +126,20 @@ def _pressure_inputs(layout, sums, moments, dtype):
     return theta, kappa, fields.lsq_nodal_pressure(moments, layout.dim, layout.scene.grid.h)
 
 
-def nodal_common_pressure(layout: Layout, sums: NodalSums, moments: jax.Array, dtype: DTypeLike) -> jax.Array:
-    """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields; with the
-    continuity form (E7) its compressive part, max(p_n, 0) with a smooth onset (`contact_onset`)."""
+def nodal_common_pressure(
+    layout: Layout, params: Params, sums: NodalSums, moments: jax.Array, dtype: DTypeLike
+) -> jax.Array:
+    """(E6) the common pressure p_n (n_nodes,) of the fields in scene.pressure_fields (with an
+    ambient pressure p_a, its gauge p_n - p_a: the phase pressures are gauge pressures); with the
+    continuity form (E7) its compressive part, max(p_n, 0) of the absolute p_n with a smooth onset
+    (`contact_onset`)."""
     theta, kappa, P = _pressure_inputs(layout, sums, moments, dtype)
     w = _shared_weight(layout, dtype)
     shared = theta if w is None else theta * w
     p = fields.common_pressure(shared, kappa, P)
     if layout.scene.continuity_form == "transport":  # fields in contact push, they do not pull (E7)
-        p = contact_onset(p, onset_pressure(shared, kappa))
+        p_abs = absolute_pressure(layout, params, p)
+        p = gauge_pressure(layout, params, contact_onset(p_abs, onset_pressure(shared, kappa)))
     return p
 
 
@@ -268,7 +275,7 @@ def _coupling_map(layout, params, stencils, beta, state, sums, operators, m_min)
         mom = scatter_named(
             layout, stencils, {"pressure_moments": pressure_moments(layout, stencils, p_part, state.volume)}
         ).pressure_moments
-        p_n = nodal_common_pressure(layout, sums, mom, dtype)
+        p_n = nodal_common_pressure(layout, params, sums, mom, dtype)
         return interface_force_of_pressure(layout, stencils, beta, state, sums, operators, m_min, p_n), mom
 
     return power_density, phase_pressure_and_compressibility(layout, params, state)[0]

@@ -18,6 +18,7 @@ from jaxmpm.stages.layout import Layout
 
 import jax.numpy as jnp
 
+from jaxmpm.stages.ambient import gauge_stress
 from jaxmpm.stages.closure import force_stress
 from jaxmpm.stages.multifield import phase_pressure_and_compressibility, pressure_moments
 from jaxmpm.stages.nodal import NodalSums, particle_radius, scatter_named, stress_parts
@@ -58,7 +59,8 @@ def particle_to_grid(
     m, v, V = state.mass, state.v, state.volume
     w = stencils.w[..., None]
     parts = {"mass": w * m[:, None, None], "momentum": w * (m[:, None] * v)[:, None, :]}
-    parts.update(stress_parts(stencils, V, beta, force_stress(layout, params, state), particle_radius(layout, state)))
+    sig = gauge_stress(layout, params, force_stress(layout, params, state))
+    parts.update(stress_parts(stencils, V, beta, sig, particle_radius(layout, state)))
     if beta is not None or layout.n_fields > 1:
         parts["volume"] = w * V[:, None, None]
     if layout.scene.has_interface_forces:
