@@ -19,7 +19,8 @@ Problems:
         --debris-resolutions (0.75, 1, 1.5, 2 by default; 3 takes 10-15 minutes a row): the feature
         velocities (points 1, 2, 4, km/s, as `python -m calibration table`) and the error, the largest
         |v - measured| of the three against Piekutowski's experiment (km/s, absolute). The seed's own
-        error at that C_h is drawn for reference (0.13 km/s at C_h = 0.02).
+        error at that C_h is drawn for reference (0.13 km/s at C_h = 0.02). Its 'cells' column holds
+        100 x the resolution.
 Settings: shape function (linear MPM, DDMP, quadratic B-spline with the musl update and with APIC),
 cells, particles per cell per axis (2 or 4 on the bar; Sod has 8 per cell on the left and 1 on the
 right, equal particle masses), float32 / float64; CFL 0.1 (bar) and 0.3 (sod).
