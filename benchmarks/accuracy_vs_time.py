@@ -14,6 +14,13 @@ Problems:
         artificial viscosity and density diffusion), 'ddmp-no-diffusion' (the default before the
         diffusion: density_diffusion 0), 'ddmp-no-av' (artificial_viscosity (0, 0)) and
         'bspline2-apic', at --dam-cells cells per a (20, 40 by default; 80 where affordable).
+  debris the debris cloud (built-in `debris_cloud`, one field, 6 us, float64) at the seed's best C_h
+        (0.02, --debris-ch) in the default configuration ('failed') and in 'tensile', at
+        --debris-resolutions (0.75, 1, 1.5, 2 by default; 3 takes 10-15 minutes a row): the feature
+        velocities (points 1, 2, 4, km/s, as `python -m calibration table`) and the error, the largest
+        |v - measured| of the three against Piekutowski's experiment (km/s, absolute). The seed's own
+        error at that C_h is drawn for reference (0.13 km/s at C_h = 0.02). Its 'cells' column holds
+        100 x the resolution.
 Settings: shape function (linear MPM, DDMP, quadratic B-spline with the musl update and with APIC),
 cells, particles per cell per axis (2 or 4 on the bar; Sod has 8 per cell on the left and 1 on the
 right, equal particle masses), float32 / float64; CFL 0.1 (bar) and 0.3 (sod).
@@ -30,7 +37,8 @@ ppc, dtype, steps, particles, wall_s, error; a PNG next to it with error against
 problem and the Pareto front; printed: the front, and DDMP's error against linear MPM's at equal wall
 time (linear MPM's smallest error among its runs that took no longer than DDMP's run).
 
-Run:  python benchmarks/accuracy_vs_time.py                # all problems
+Run:  python benchmarks/accuracy_vs_time.py                # bar, sod and dam (the debris cloud only with --only debris)
+      python benchmarks/accuracy_vs_time.py --only debris --repeats 0 --out X.csv   # the debris cloud alone, one timed run a row
       python benchmarks/accuracy_vs_time.py --only dam --dam-cells 10,20 --repeats 1 --out X.csv   # the dam break alone
       python benchmarks/accuracy_vs_time.py --quick        # fewer rows, 2 minutes
 """
@@ -155,10 +163,31 @@ def dam_error(scene, s0, final, hist=None):
     return abs(front_speed(T, Z, 3.5, 4.75) / measured - 1), (T.tolist(), Z.tolist())
 
 
+DEBRIS_CH = 0.02  # the seed's best C_h against the experiment
+DEBRIS_CONFIGS = ("failed", "tensile")
+SEED_ERROR = 0.13  # the seed's largest |v - measured| at C_h = 0.02 (6.29 / 5.97 / 3.92 against 6.3 / 6.1 / 3.9)
+
+
+def debris_scene(shape, cells, ppc, c_h=DEBRIS_CH):
+    """`shape` is the closure's configuration, `cells` the resolution in hundredths (75: 0.75)."""
+    return jaxmpm.load_scene("debris_cloud", resolution=cells / 100, fields=1, c_h=c_h, fragmentation=shape)
+
+
+def debris_error(scene, s0, final, hist=None):
+    """Largest |v - measured| (km/s) over points 1, 2, 4, and the three velocities (km/s), from the
+    later half of the run as `python -m calibration table` measures them."""
+    from calibration.data import load
+    from jaxmpm.features import feature_velocities
+
+    v = -np.asarray(feature_velocities(scene, hist, first=hist.t.shape[0] // 2)) / 1000.0
+    return float(np.max(np.abs(v - load().experiment))), v
+
+
 PROBLEMS = {
     "bar": (bar_scene, bar_error, PERIOD),
     "sod": (sod_scene, sod_error, 0.2),
     "dam": (dam_scene, dam_error, None),
+    "debris": (debris_scene, debris_error, None),
 }
 
 
@@ -166,14 +195,15 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
     build, error, t_end = PROBLEMS[problem]
     scene = build(shape, cells, ppc)
     t_end = scene.t_end if t_end is None else t_end
-    n_out = 36 if problem == "dam" else 1
+    n_out = {"dam": 36, "debris": 12}.get(problem, 1)
     params = jaxmpm.default_params(scene)
     s0 = initial_state(scene, params)
     if dtype == "float32":
         params, s0 = _cast(params, jnp.float32), _cast(s0, jnp.float32)
+    t0 = time.perf_counter()
     final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)  # compiles
     jax.block_until_ready(final)
-    times = []
+    times = [time.perf_counter() - t0] if repeats == 0 else []  # --repeats 0: the first run, compilation included
     for _ in range(repeats):
         t0 = time.perf_counter()
         final, hist = jaxmpm.simulate(scene, params, s0, t_end=t_end, n_out=n_out, progress=False)
@@ -184,6 +214,9 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
     if problem == "dam":
         err, (T, Z) = error(scene, s0, final, hist) if finite else (float("nan"), ([], []))
         extra = {"front_T": " ".join(f"{t:.3f}" for t in T), "front_Z": " ".join(f"{z:.4f}" for z in Z)}
+    elif problem == "debris":
+        err, v = error(scene, s0, final, hist) if finite else (float("nan"), [float("nan")] * 3)
+        extra = {"v1_km_s": round(float(v[0]), 3), "v2_km_s": round(float(v[1]), 3), "v4_km_s": round(float(v[2]), 3)}
     else:
         err = error(scene, s0, final) if finite else float("nan")
     from jaxmpm.step import cfl_time_step
@@ -203,7 +236,9 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
     }
 
 
-def rows_to_run(quick, dam_cells=(20, 40), only=None):
+def rows_to_run(quick, dam_cells=(20, 40), only=None, debris_resolutions=(0.75, 1.0, 1.5, 2.0)):
+    if only == "debris":
+        return [("debris", c, round(100 * r), 2, "float64") for c in DEBRIS_CONFIGS for r in debris_resolutions]
     out = []
     for shape in DAM_SCHEMES:
         for cells in dam_cells:
@@ -249,7 +284,7 @@ def best_error_within(rows, t):
 
 def _shape_names():
     """Every row's scheme name, in the order that gives each its colour."""
-    return list(SHAPES) + [s for s in DAM_SCHEMES if s not in SHAPES]
+    return list(SHAPES) + [s for s in DAM_SCHEMES if s not in SHAPES] + list(DEBRIS_CONFIGS)
 
 
 def read_rows(path):
@@ -298,15 +333,20 @@ def plot(rows, path):
                         )
         front = pareto(sub)
         ax.plot([r["wall_s"] for r in front], [r["error"] for r in front], "k:", lw=1, label="Pareto front")
+        if prob == "debris":
+            ax.axhline(SEED_ERROR, color="0.4", ls="--", lw=1, label=f"the seed's error at C_h = {DEBRIS_CH}")
+            for r in sub:
+                ax.annotate(f"res {r['cells'] / 100:g}", (r["wall_s"], r["error"]), fontsize="x-small")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time (s)")
-        ax.set_ylabel("relative error")
+        ax.set_ylabel("largest |v - measured| (km/s)" if prob == "debris" else "relative error")
         ax.set_title(
             {
                 "bar": "vibrating bar, v0 = 0.1 m/s, one period",
                 "sod": "Sod shock tube, t = 0.2",
                 "dam": "dam break: |front speed / Martin & Moyce - 1|",
+                "debris": f"debris cloud, C_h = {DEBRIS_CH}: points 1, 2, 4 against Piekutowski",
             }[prob]
         )
         ax.legend(fontsize="x-small")
@@ -343,8 +383,13 @@ def plot_dam_fronts(ax, rows):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--only", choices=("dam",), help="only the dam break's rows")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs after the compiling one (0: time that one)")
+    ap.add_argument("--only", choices=("dam", "debris"), help="only the dam break's or the debris cloud's rows")
+    ap.add_argument(
+        "--debris-resolutions",
+        default="0.75,1,1.5,2",
+        help="the debris cloud's resolutions, comma-separated (debris_cloud's; 3 takes 10-15 minutes a row)",
+    )
     ap.add_argument(
         "--dam-cells",
         help="the dam break's cells per column width a, comma-separated (default 20,40; 10,20 with --quick)",
@@ -362,7 +407,8 @@ def main(argv=None):
     check_outputs(out, out.with_suffix(".png"), overwrite=args.overwrite)
     rows = []
     dam_cells = args.dam_cells or ("10,20" if args.quick else "20,40")
-    for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only):
+    debris_resolutions = tuple(float(r) for r in args.debris_resolutions.split(","))
+    for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only, debris_resolutions):
         r = measure(*spec, repeats=args.repeats)
         rows.append(r)
         print(
@@ -380,7 +426,7 @@ def main(argv=None):
             w.writerows(rows)
     png = out.with_suffix(".png")
     plot(rows, png)
-    for prob in ("bar", "sod", "dam"):
+    for prob in ("bar", "sod", "dam", "debris"):
         if not any(r["problem"] == prob for r in rows):
             continue
         print(f"\nPareto front, {prob}:")

@@ -282,15 +282,17 @@ def test_gradient_of_the_fit_loss_matches_finite_differences():
 
 
 @pytest.mark.slow
-def test_gradient_of_the_fit_loss_matches_small_step_differences():
+@pytest.mark.parametrize("fragmentation", ["failed", "tensile"])
+def test_gradient_of_the_fit_loss_matches_small_step_differences(fragmentation):
     """The issue's check of the fit loss's gradient (float64, two fields, 3 us, at (C_d, C_h) =
     (1, 0.15)) against central differences at step 1e-6 in (log C_d, log C_h): within 1e-3
-    (measured within 1e-4; the issue asked for 5%). At this step the differences stay on the smooth piece of the response that AD
-    differentiates; larger steps cross its jumps (the strict xfail above)."""
+    (measured within 1e-4 with 'failed', 1.4e-5 and 1.4e-7 with 'tensile'; the issue asked for 5%).
+    At this step the differences stay on the smooth piece of the response that AD differentiates;
+    larger steps cross its jumps (the strict xfails above and below)."""
     from calibration.fit import loss_fn
     from calibration.model import CloudModel
 
-    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6)
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6, fragmentation=fragmentation)
     target = data.load().experiment
     loss = jax.jit(lambda th: loss_fn(model.velocities, target)(th)[0])
     theta = jnp.log(jnp.array([1.0, 0.15]))
@@ -300,6 +302,32 @@ def test_gradient_of_the_fit_loss_matches_small_step_differences():
     print("d loss / d log (C_d, C_h): AD", g, "differences at 1e-6", fd)
     assert abs(g[0]) > 0.1 and abs(g[1]) > 0.01
     np.testing.assert_allclose(g, fd, rtol=1e-3)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation, documented in docs/closure.md: with fragmentation 'tensile' the coarse "
+    "cloud's loss is rough in both coefficients at steps of 0.005-0.02 in log (C_d, C_h): AD gives "
+    "(0.183, 2.118) at (1, 0.15), central differences (0.791, 1.354) at step 0.005 and (-2.457, 2.429) "
+    "at 0.02, while at 1e-6 they agree with AD within 1.4e-5 (the test above). Particles whose "
+    "tension-counted plastic strain starts one step earlier or later switch the pressure factor",
+)
+def test_gradient_of_the_tensile_fit_loss_matches_finite_differences():
+    """float64, two fields, 3 us, fragmentation 'tensile', at (C_d, C_h) = (1, 0.15): both
+    components of d loss / d log (C_d, C_h) within 5% of central differences at steps 0.02 and 0.005."""
+    from calibration.fit import loss_fn
+    from calibration.model import CloudModel
+
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, n_out=6, fragmentation="tensile")
+    target = data.load().experiment
+    loss = jax.jit(lambda th: loss_fn(model.velocities, target)(th)[0])
+    theta = jnp.log(jnp.array([1.0, 0.15]))
+    g = np.asarray(jax.jit(jax.grad(lambda th: loss_fn(model.velocities, target)(th)[0]))(theta))
+    assert np.all(np.isfinite(g))
+    for eps in (0.02, 0.005):
+        fd = np.array([(float(loss(theta + eps * e)) - float(loss(theta - eps * e))) / (2 * eps) for e in np.eye(2)])
+        np.testing.assert_allclose(g, fd, rtol=0.05, err_msg=f"step {eps}")
 
 
 @pytest.mark.parametrize(
