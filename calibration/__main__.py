@@ -21,6 +21,7 @@ from calibration.arguments import (
     check_scene,
     iterations,
     measurements,
+    model_header,
     new_folder,
     pair,
     positive,
@@ -47,11 +48,7 @@ def cmd_table(args: argparse.Namespace) -> int:
     meas = measurements(args.data)
     out = new_folder(args.out)
     model = setup_model(args)
-    print(
-        f"debris_cloud: resolution {args.resolution}, {args.fields} field(s), {model.state.x.shape[0]} particles, "
-        f"{model.n_steps} steps to {model.t_end:g} s; C_h = {values} in one vmapped call",
-        flush=True,
-    )
+    print(f"{model_header(args, model)}; C_h = {values} in one vmapped call", flush=True)
     t0 = time.perf_counter()
     thetas = np.log(np.stack([np.full(len(values), args.drag), values], -1))
     v = np.asarray(model.velocities_batch(thetas, allow_short=True))

@@ -8,6 +8,7 @@ import os
 import platform
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -82,6 +83,19 @@ def bounds(lo_hi: Sequence[float], flag: str) -> tuple[float, float]:
     return lo, hi
 
 
+def scene_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The debris_cloud scene's keyword options that the arguments set (resolution, fields, t_end,
+    fragmentation, drag_heating, artificial_viscosity)."""
+    return dict(
+        resolution=args.resolution,
+        fields=args.fields,
+        t_end=args.t_end,
+        fragmentation=args.fragmentation,
+        drag_heating=args.drag_heating,
+        artificial_viscosity=tuple(args.artificial_viscosity),
+    )
+
+
 def check_scene(args: argparse.Namespace, fields: tuple[int, ...]) -> None:
     """Refuse a bad --fields, --t-end or --resolution before any work; the debris_cloud scene, built
     here without arrays (milliseconds), checks what remains: the resolution's lower bound."""
@@ -95,15 +109,7 @@ def check_scene(args: argparse.Namespace, fields: tuple[int, ...]) -> None:
     if not (args.step_safety >= 1 and args.step_safety < np.inf):
         raise ValueError(f"--step-safety {args.step_safety} is invalid: allowed a finite number >= 1")
     try:
-        jaxmpm.load_scene(
-            "debris_cloud",
-            resolution=args.resolution,
-            fields=args.fields,
-            t_end=args.t_end,
-            fragmentation=args.fragmentation,
-            drag_heating=args.drag_heating,
-            artificial_viscosity=tuple(args.artificial_viscosity),
-        )
+        jaxmpm.load_scene("debris_cloud", **scene_options(args))
     except ValueError as e:
         if args.drag_heating and args.fields != 2:
             raise ValueError(
@@ -145,12 +151,12 @@ def setup_model(args: argparse.Namespace) -> CloudModel:
     """The debris-cloud model of the arguments (--float32 off: float64 switched on first)."""
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
-    return CloudModel.build(
-        resolution=args.resolution,
-        fields=args.fields,
-        t_end=args.t_end,
-        safety=args.step_safety,
-        fragmentation=args.fragmentation,
-        drag_heating=args.drag_heating,
-        artificial_viscosity=tuple(args.artificial_viscosity),
+    return CloudModel.build(safety=args.step_safety, **scene_options(args))
+
+
+def model_header(args: argparse.Namespace, model: CloudModel) -> str:
+    """The line a command prints before its runs: the scene, its particles and its steps."""
+    return (
+        f"debris_cloud: resolution {args.resolution}, {args.fields} field(s), {model.state.x.shape[0]} particles, "
+        f"{model.n_steps} steps to {model.t_end:g} s"
     )

@@ -18,8 +18,10 @@ from calibration.arguments import (
     check_scene,
     iterations,
     measurements,
+    model_header,
     new_folder,
     pair,
+    scene_options,
     positive,
     setup_model,
     versions,
@@ -156,10 +158,7 @@ def fit_settings(
     """result.json's settings: the scene's and the fit's options, the steps, the particles, the
     data file, the wall time (s) and the command line."""
     return dict(
-        resolution=args.resolution,
-        fields=args.fields,
-        fragmentation=args.fragmentation,
-        drag_heating=args.drag_heating,
+        scene_options(args),
         artificial_viscosity=list(args.artificial_viscosity),
         t_end=model.t_end,
         n_steps=model.n_steps,
@@ -183,11 +182,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     meas = measurements(args.data)
     out = new_folder(args.out)
     model = setup_model(args)
-    print(
-        f"debris_cloud: resolution {args.resolution}, {args.fields} fields, {model.state.x.shape[0]} particles, "
-        f"{model.n_steps} steps to {model.t_end:g} s; start C_d = {start[0]:g}, C_h = {start[1]:g}",
-        flush=True,
-    )
+    print(f"{model_header(args, model)}; start C_d = {start[0]:g}, C_h = {start[1]:g}", flush=True)
     t0 = time.perf_counter()
     res, starts = fit_from_starts(args, model, meas, start)
     se_theta, se, J, cond = fitting.standard_errors(model.velocities, res.theta, res.residuals)

@@ -71,10 +71,15 @@ def check_sampling(scene: Scene) -> None:
             raise ValueError(
                 f"phase.{p.name}.geometry = {p.geometry.to_dict()} holds no particle: make it larger than a cell or raise ppc"
             )
-        bad = np.any((x < lo) | (x > hi), axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
+        i = first_outside(x, lo, hi)
+        if i is not None:
             raise ValueError(
                 f"phase.{p.name}.geometry: particle {i} at {x[i].tolist()} lies outside the grid's usable "
                 f"region [{lo.tolist()}, {hi.tolist()}] m (shape {scene.shape!r} needs {margin} cell of margin)"
             )
+
+
+def first_outside(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int | None:
+    """The index of the first of the points x (N, d) outside the box [lo, hi] (d,), or None."""
+    out = np.any((x < lo) | (x > hi), axis=1)
+    return int(np.argmax(out)) if out.any() else None

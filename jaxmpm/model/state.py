@@ -30,7 +30,7 @@ import numpy as np
 
 from jaxmpm.materials.models import model_of
 from jaxmpm.model.params import Params, check_params
-from jaxmpm.model.sampling import sample_phase, usable_region
+from jaxmpm.model.sampling import first_outside, sample_phase, usable_region
 from jaxmpm.model.scene import Scene
 
 
@@ -229,9 +229,8 @@ def check_state(scene: Scene, state: State) -> None:
         )
     _, lo, hi = usable_region(scene)
     x = np.asarray(state.x)
-    out = np.any((x < lo) | (x > hi), axis=1)
-    if out.any():
-        i = int(np.argmax(out))
+    i = first_outside(x, lo, hi)
+    if i is not None:
         raise ValueError(
             f"state.x of particle {i} (phase {phase_of(i)!r}) = {x[i].tolist()} m lies outside the grid: "
             f"allowed [{lo.tolist()}, {hi.tolist()}] m"
