@@ -447,8 +447,9 @@ def synthetic_fit():
 
 @pytest.mark.slow
 def test_synthetic_recovery_from_two_times_away(synthetic_fit):
-    """Both C_d and C_h recovered within 5% from a start at twice their values (measured: 1e-6,
-    15 L-BFGS iterations, 34 loss-and-gradient evaluations)."""
+    """Both C_d and C_h recovered within 5% from a start at twice their values (measured: 1.2e-7,
+    10 L-BFGS iterations, 20 loss-and-gradient evaluations). C_h is seen through the block's early
+    pressure (calibration.synthetic's observable 2): at t_end alone it is not identifiable."""
     _, _, _, res = synthetic_fit
     err = res.values / np.asarray(TRUTH) - 1
     assert np.all(np.abs(err) < 0.05), (res.values, res.stopped)
@@ -458,11 +459,9 @@ def test_synthetic_recovery_from_two_times_away(synthetic_fit):
 @pytest.mark.slow
 def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
     """The gradient of the loss at the start (the fit's first evaluation, jax.value_and_grad
-    through the checkpointed simulate) against central differences at two step sizes: within 1%
-    (measured at step 1e-3: 6e-5 for d / d log C_d, 0.9% for d / d log C_h, 0.03411 against
-    0.03442: the differences already straddle small jumps there, see below). Steps of 3e-3 and more straddle small jumps of the observables (d spread /
-    d log C_h by differences: 0.064 at steps 3e-4 and 1e-3, 0.065 at 3e-3; d velocity / d log C_h:
-    0.024, 0.024, 0.014), see the calibration issue's note."""
+    through the checkpointed simulate) against central differences at two step sizes: within 0.2%
+    (measured: 1.7e-4 and 3.3e-4 at step 1e-3, 4.6e-5 and 2.8e-5 at 3e-4, 5e-6 at 1e-4; steps of
+    3e-3 and more straddle small jumps of the observables: 3.3% at 3e-3)."""
     from calibration.fit import loss_fn
 
     model, target, start, res = synthetic_fit
@@ -470,7 +469,7 @@ def test_synthetic_loss_gradient_matches_finite_differences(synthetic_fit):
     loss = jax.jit(lambda th: loss_fn(model.observables, target)(th)[0])
     for eps in (1e-3, 3e-4):
         fd = np.array([(float(loss(start + eps * e)) - float(loss(start - eps * e))) / (2 * eps) for e in np.eye(2)])
-        np.testing.assert_allclose(g, fd, rtol=1e-2, err_msg=f"step {eps}")
+        np.testing.assert_allclose(g, fd, rtol=2e-3, err_msg=f"step {eps}")
 
 
 def test_fit_refuses_an_unknown_method():
