@@ -196,14 +196,14 @@ def impact_run(window, gradient):
     step = jaxmpm.make_step(scene)
 
     def loss(cd):
-        p = dataclasses.replace(params, drag_coefficient=cd)
+        p = dataclasses.replace(params, drag=cd)
         s = jax.lax.scan(lambda c, _: (step(p, c), None), s0, None, length=60)[0]
-        return jnp.sum(s.mass * s.v[:, 1] * (s.x[:, 1] > 0.5)), s
+        return jnp.sum(s.mass * s.v[:, 1] * (s.x[:, 1] > 0.5).astype(s.mass.dtype)), s
 
     if gradient:
-        (l, s), g = jaxmpm.jit(jax.value_and_grad(loss, has_aux=True))(params.drag_coefficient)
+        (l, s), g = jaxmpm.jit(jax.value_and_grad(loss, has_aux=True))(params.drag)
         return s, (l, g)
-    return jaxmpm.jit(lambda cd: loss(cd)[1])(params.drag_coefficient), None
+    return jaxmpm.jit(lambda cd: loss(cd)[1])(params.drag), None
 
 
 def assert_same_run(ref, s, what):
