@@ -5,17 +5,12 @@ each count is a lower bound of what the computation holds."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
-import numpy as np
 
 from jaxmpm.model.geometry import Grid
 from jaxmpm.model.parts import Phase
 from jaxmpm.model.sampling import lattice_cells
-
-if TYPE_CHECKING:  # for annotations only: scene.py imports this module
-    from jaxmpm.model.scene import Scene
-    from jaxmpm.model.state import State
+from jaxmpm.model.scene_fields import SceneFields
 
 
 NUMBERS_PER_NODE = 16  # a lower bound: a step holds far more per node and velocity field than this
@@ -33,13 +28,6 @@ def available_memory() -> int | None:
     return None
 
 
-def check_memory(scene: Scene, state: State) -> None:
-    """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
-    numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
-    guess (a larger grid can still run out of memory later)."""
-    check_scene_memory(scene, np.asarray(state.x).dtype.itemsize)
-
-
 def lattice_points(grid: Grid, phase: Phase) -> int:
     """The number of lattice points `state.sample_phase` lays over the phase's bounding box (ppc^d per
     cell of the grid that the box touches), before it keeps those inside the geometry."""
@@ -47,7 +35,7 @@ def lattice_points(grid: Grid, phase: Phase) -> int:
     return math.prod(max(int(b - a), 0) * phase.ppc for a, b in zip(c_lo, c_hi))
 
 
-def check_scene_memory(scene: Scene, itemsize: int = 8) -> None:
+def check_scene_memory(scene: SceneFields, itemsize: int = 8) -> None:
     """ValueError before particles are sampled where the grid (as `check_memory`) or a phase's
     particle lattice cannot fit in the memory available: the lattice's positions alone, d numbers
     per point, are less than sampling holds, so a refusal is certain, not a guess."""
@@ -82,7 +70,7 @@ def size_text(n: float) -> str:
     return f"{int(n)} B"
 
 
-def particle_numbers(scene: Scene) -> int:
+def particle_numbers(scene: SceneFields) -> int:
     """Numbers a State holds per particle at least: position and velocity (d each), mass, volume,
     energy, deformation gradient and stress (d^2 each, 3^2 axisymmetric)."""
     d = scene.dim
@@ -91,7 +79,7 @@ def particle_numbers(scene: Scene) -> int:
 
 
 def run_memory(
-    scene: Scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None
+    scene: SceneFields, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None
 ) -> tuple[int, int, int]:
     """(total, per state, grid) bytes a host-driven run needs at least: the n_out + 1 states of its
     history and the one it advances (`particle_numbers` per particle, or `state_bytes` each), and
@@ -101,7 +89,9 @@ def run_memory(
     return (int(n_out) + 2) * per_state + grid, per_state, grid
 
 
-def check_run_memory(scene: Scene, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None) -> None:
+def check_run_memory(
+    scene: SceneFields, particles: int, n_out: int, itemsize: int, state_bytes: int | None = None
+) -> None:
     """ValueError before a run (before its state is made, where `state_bytes` is None) whose history
     and grid (`run_memory`) need more memory than is available."""
     avail = available_memory()

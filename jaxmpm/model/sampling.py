@@ -4,15 +4,12 @@ box, the positions it keeps, and the checks a Scene runs on them when it is buil
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from jaxmpm.model.geometry import Grid
 from jaxmpm.model.parts import Phase
-
-if TYPE_CHECKING:  # for annotations only: scene.py imports this module
-    from jaxmpm.model.scene import Scene
+from jaxmpm.model.scene_fields import SceneFields
 
 
 def lattice_cells(grid: Grid, phase: Phase) -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +33,7 @@ def sample_phase(grid: Grid, phase: Phase) -> np.ndarray:
     return pts[phase.geometry.contains(pts)]
 
 
-def usable_region(scene: Scene) -> tuple[float, np.ndarray, np.ndarray]:
+def usable_region(scene: SceneFields) -> tuple[float, np.ndarray, np.ndarray]:
     """(margin, lo, hi): the part of the grid where a particle's stencil stays on the grid, lo and hi
     (d,) m, `margin` cells in from each face (half a cell for the quadratic B-spline, else none)."""
     margin = 0.5 if scene.shape == "bspline2" else 0.0
@@ -45,7 +42,7 @@ def usable_region(scene: Scene) -> tuple[float, np.ndarray, np.ndarray]:
     return margin, lo, hi
 
 
-def check_sampling(scene: Scene) -> None:
+def check_sampling(scene: SceneFields) -> None:
     """Raise ValueError if a phase has no particle, a particle lies where its stencil leaves the
     grid, or bodies of one velocity field overlap with volume fractions that sum to more than 1
     (two coincident bodies of fraction 1 would double the mass of that continuum there; a mixture's

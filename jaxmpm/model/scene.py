@@ -14,10 +14,8 @@ Scenes are built in Python or read from TOML (`jaxmpm.load_scene`), and written 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
-
-from jaxmpm.materials import Material, resolve_material
 
 # the geometry and the scene's parts live in jaxmpm.model.geometry and jaxmpm.model.parts; their
 # names stay importable from here
@@ -50,11 +48,19 @@ from jaxmpm.model.parts import (
     CONTINUITY as CONTINUITY,
 )
 from jaxmpm.model.parts import (
-    DENSITY_DIFFUSION,
-    FLUID_VISCOSITY,
-    Boundary,
-    Phase,
-    is_fluid,
+    DENSITY_DIFFUSION as DENSITY_DIFFUSION,
+)
+from jaxmpm.model.parts import (
+    FLUID_VISCOSITY as FLUID_VISCOSITY,
+)
+from jaxmpm.model.parts import (
+    Boundary as Boundary,
+)
+from jaxmpm.model.parts import (
+    Phase as Phase,
+)
+from jaxmpm.model.parts import (
+    is_fluid as is_fluid,
 )
 from jaxmpm.model.parts import (
     FACE_NAMES as FACE_NAMES,
@@ -72,12 +78,13 @@ from jaxmpm.model.parts import (
     TRANSFERS as TRANSFERS,
 )
 from jaxmpm.model.sampling import check_sampling
+from jaxmpm.model.scene_fields import SceneFields
 from jaxmpm.model.scene_checks import check_scene_fields
 
 
 # ----------------------------------------------------------------------------------- scene
 @dataclass(frozen=True)
-class Scene:
+class Scene(SceneFields):
     """Static description of a simulation. Hashable; validated at construction.
 
     Fields:
@@ -163,115 +170,11 @@ class Scene:
       boundary: Boundary. cfl: Courant number in (0, 1]. t_end: default end time (s). n_out: outputs.
     """
 
-    grid: Grid
-    phases: tuple[Phase, ...]
-    materials: tuple[Material, ...] = ()
-    shape: str = "ddmp"
-    transfer: str = "musl"
-    gravity: tuple[float, ...] | None = None
-    gravity_ramp: float = 0.0
-    damping: float | None = None
-    body_force: bool = False
-    drag: float | None = None
-    drag_length: float | None = None
-    linear_drag: float | None = None
-    drag_heating: bool = False
-    interface_forces: bool = True
-    continuity: str = "auto"
-    c_h: float | None = None
-    fragmentation: str = "failed"
-    artificial_viscosity: tuple[float, float] | None = None
-    density_diffusion: float = DENSITY_DIFFUSION
-    ambient_pressure: float | None = None
-    axisymmetric: bool = False
-    boundary: Boundary = field(default_factory=Boundary)
-    cfl: float = 0.3
-    t_end: float = 1e-3
-    n_out: int = 10
-    name: str = "scene"
-    description: str = ""
-    window: tuple[int, ...] | None = None
-
     def __post_init__(self):
         check_scene_fields(self)  # jaxmpm.model.scene_checks: each field, in order
         # before sampling (grid at float32, the least a run holds): refused, not swapped
         check_scene_memory(self, itemsize=4)
         check_sampling(self)  # every phase has particles, all inside the grid's usable region
-
-    # ------------------------------------------------------------------ derived static facts
-    @property
-    def dim(self) -> int:
-        return self.grid.dim
-
-    @property
-    def material_dim(self) -> int:
-        """Dimension of F and the stress: 3 for axisymmetric scenes (r, z, theta), else dim."""
-        return 3 if self.axisymmetric else self.dim
-
-    @property
-    def n_fields(self) -> int:
-        return 1 + max(p.field for p in self.phases)
-
-    @property
-    def has_exchange(self) -> bool:
-        """Whether the step traces the exchange force (E3): several fields and a drag term."""
-        return self.n_fields > 1 and (self.drag is not None or self.linear_drag is not None)
-
-    @property
-    def has_closure(self) -> bool:
-        """Whether the continuous-to-disperse closure (E4, E5, E8) is on: effects.c_h given. The one
-        switch of jaxmpm.stages.closure."""
-        return self.c_h is not None
-
-    @property
-    def has_interface_forces(self) -> bool:
-        return self.n_fields > 1 and self.interface_forces is not False
-
-    @property
-    def continuity_possible(self) -> bool:
-        """Whether the continuity form (E7) can be on: interface forces and transfer = 'musl'."""
-        return self.has_interface_forces and self.transfer == "musl"
-
-    @property
-    def continuity_form(self) -> str:
-        """The continuity form the step uses (E7): 'transport' or 'off'. 'auto' gives 'transport'
-        wherever the scene can have it (>= 2 velocity fields with interface forces, transfer
-        'musl'), else 'off'."""
-        if self.continuity != "auto":
-            return self.continuity
-        return "transport" if self.continuity_possible else "off"
-
-    @property
-    def viscous_phases(self) -> tuple[bool, ...]:
-        """Per phase: whether it takes the artificial viscosity (`viscosity`'s coefficients)."""
-        if self.artificial_viscosity is not None:
-            return (True,) * len(self.phases)
-        if self.transfer == "apic":
-            return (False,) * len(self.phases)
-        return tuple(is_fluid(self.material(p).model) for p in self.phases)
-
-    @property
-    def viscosity(self) -> tuple[float, float] | None:
-        """(c_linear, c_quadratic) of the artificial viscosity the step applies to `viscous_phases`,
-        or None where no phase takes one: artificial_viscosity if given, else FLUID_VISCOSITY
-        where a phase is a fluid (see the field's note)."""
-        if self.artificial_viscosity is not None:
-            return self.artificial_viscosity
-        return FLUID_VISCOSITY if any(self.viscous_phases) else None
-
-    @property
-    def pressure_fields(self) -> tuple[int, ...]:
-        """The velocity fields that share the common pressure and its interface forces (E6, E13)."""
-        if not self.has_interface_forces:
-            return ()
-        return tuple(range(self.n_fields)) if self.interface_forces is True else tuple(self.interface_forces)
-
-    def material(self, phase: Phase) -> Material:
-        """The resolved Material of `phase` (library key, scene material or Material)."""
-        return resolve_material(phase.material, self.materials, f"phase.{phase.name}.material")
-
-    def phase_names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.phases)
 
     def replace(self, **changes: Any) -> "Scene":
         return dataclasses.replace(self, **changes)

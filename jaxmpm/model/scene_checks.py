@@ -8,19 +8,16 @@ jaxmpm.model.numbers.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import TYPE_CHECKING
 
 from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of
 from jaxmpm.model.geometry import Grid, as_float, fail, is_integer
 from jaxmpm.model.numbers import NUMBERS
 from jaxmpm.model.parts import AXES, CONTINUITY, FACE_NAMES, FRAGMENTATION, SHAPES, TRANSFERS, Boundary, Phase, is_fluid
-
-if TYPE_CHECKING:  # for annotations only: scene.py imports this module
-    from jaxmpm.model.scene import Scene
+from jaxmpm.model.scene_fields import SceneFields
 
 
-def check_scene_fields(scene: Scene) -> None:
+def check_scene_fields(scene: SceneFields) -> None:
     """Every check below, in order."""
     check_parts(scene)
     check_phases(scene)
@@ -38,7 +35,7 @@ def check_scene_fields(scene: Scene) -> None:
     check_window_use(scene)
 
 
-def check_parts(scene: Scene) -> None:
+def check_parts(scene: SceneFields) -> None:
     """The grid, the phases and materials (tuples of Phase and Material), name and description."""
     if not isinstance(scene.grid, Grid):
         fail("grid", scene.grid, "a Grid")
@@ -59,7 +56,7 @@ def check_parts(scene: Scene) -> None:
     object.__setattr__(scene, "materials", tuple(scene.materials))
 
 
-def check_phases(scene: Scene) -> None:
+def check_phases(scene: SceneFields) -> None:
     """Unique phase names, each body inside the grid, velocity fields numbered without gaps."""
     dim = scene.grid.dim
     names = [p.name for p in scene.phases]
@@ -85,7 +82,7 @@ def check_phases(scene: Scene) -> None:
         fail(f"phase.{bad.name}.field", bad.field, f"fields numbered 0..{len(fields) - 1} without gaps")
 
 
-def check_materials(scene: Scene) -> None:
+def check_materials(scene: SceneFields) -> None:
     """Unique material keys; every phase's material resolves (an unknown key fails here, listing
     the known ones), one material per key (a scene file names a material by its key alone)."""
     keys = [m.key for m in scene.materials]
@@ -104,7 +101,7 @@ def check_materials(scene: Scene) -> None:
             )
 
 
-def check_scheme(scene: Scene) -> None:
+def check_scheme(scene: SceneFields) -> None:
     """The shape function and the transfer scheme, and that 'apic' has B-splines."""
     if scene.shape not in SHAPES:
         fail("shape", scene.shape, " | ".join(SHAPES))
@@ -114,7 +111,7 @@ def check_scheme(scene: Scene) -> None:
         fail("transfer", scene.transfer, "'apic' only with shape = 'bspline2'")
 
 
-def check_numbers(scene: Scene) -> None:
+def check_numbers(scene: SceneFields) -> None:
     """The effects' numbers and cfl, from the table of jaxmpm.model.numbers: each in its range,
     and those that only act with another effect (gravity_ramp, drag_length) only with it."""
     for n in NUMBERS:
@@ -129,7 +126,7 @@ def check_numbers(scene: Scene) -> None:
         fail("effects.body_force", scene.body_force, "true | false")
 
 
-def check_viscous_models(scene: Scene) -> None:
+def check_viscous_models(scene: SceneFields) -> None:
     """An artificial viscosity given for every phase only where each has an equation of state
     (or is a linear_fluid, which recomputes its stress from F each step: a q does not accumulate)."""
     if scene.artificial_viscosity is None:
@@ -144,7 +141,7 @@ def check_viscous_models(scene: Scene) -> None:
             )
 
 
-def check_density_diffusion(scene: Scene) -> None:
+def check_density_diffusion(scene: SceneFields) -> None:
     """The fluids' density diffusion delta in [0, 1] (dimensionless; 0: off)."""
     delta = as_float("effects.density_diffusion", scene.density_diffusion)
     if not 0 <= delta <= 1:
@@ -152,7 +149,7 @@ def check_density_diffusion(scene: Scene) -> None:
     object.__setattr__(scene, "density_diffusion", delta)
 
 
-def check_axisymmetric(scene: Scene) -> None:
+def check_axisymmetric(scene: SceneFields) -> None:
     """Axisymmetric: a 2D (r, z) grid at r >= 0, with the shapes and updates that have a hoop term."""
     if not isinstance(scene.axisymmetric, bool):
         fail("axisymmetric", scene.axisymmetric, "true | false")
@@ -166,7 +163,7 @@ def check_axisymmetric(scene: Scene) -> None:
         fail("axisymmetric", True, "only with shape 'ddmp' or 'linear' and the musl / seed updates")
 
 
-def check_window_shape(scene: Scene) -> None:
+def check_window_shape(scene: SceneFields) -> None:
     """A window is d cell counts, each within the grid's."""
     if scene.window is None:
         return
@@ -181,7 +178,7 @@ def check_window_shape(scene: Scene) -> None:
     object.__setattr__(scene, "window", tuple(int(c) for c in w))
 
 
-def check_couplings(scene: Scene) -> None:
+def check_couplings(scene: SceneFields) -> None:
     """Interface forces (all fields, or a list of >= 2), the continuity form, the closure's
     fragmentation, and the schemes that several fields and the closure need."""
     if not isinstance(scene.interface_forces, bool):
@@ -219,7 +216,7 @@ def check_couplings(scene: Scene) -> None:
         fail("shape", scene.shape, "'ddmp' or 'linear' (not apic) when phases use several velocity fields")
 
 
-def check_boundary(scene: Scene) -> None:
+def check_boundary(scene: SceneFields) -> None:
     """A Boundary whose faces are the grid's, with fewer wall layers than the grid has cells."""
     if not isinstance(scene.boundary, Boundary):
         fail("boundary", scene.boundary, "a Boundary")
@@ -238,7 +235,7 @@ def check_boundary(scene: Scene) -> None:
             )
 
 
-def check_run(scene: Scene) -> None:
+def check_run(scene: SceneFields) -> None:
     """The default end time and number of outputs."""
     t_end = as_float("t_end", scene.t_end)
     if not t_end > 0:
@@ -248,7 +245,7 @@ def check_run(scene: Scene) -> None:
         fail("output.n_out", scene.n_out, "an integer >= 1")
 
 
-def check_drag_heating(scene: Scene) -> None:
+def check_drag_heating(scene: SceneFields) -> None:
     """Drag heating needs an exchange to heat with and the 'musl' update."""
     if not isinstance(scene.drag_heating, bool):
         fail("effects.drag_heating", scene.drag_heating, "true | false")
@@ -267,7 +264,7 @@ def check_drag_heating(scene: Scene) -> None:
         )
 
 
-def check_window_use(scene: Scene) -> None:
+def check_window_use(scene: SceneFields) -> None:
     """A window only where the scene has per-field grid operators to compute on it."""
     if scene.window is not None and scene.shape != "ddmp" and not scene.has_interface_forces and not scene.has_exchange:
         fail(

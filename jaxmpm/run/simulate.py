@@ -14,7 +14,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from jaxmpm.io.files import check_new
-from jaxmpm.model.memory import check_memory
+from jaxmpm.model.memory import check_scene_memory
 from jaxmpm.model.params import Params, check_params
 from jaxmpm.model.scene import Scene
 from jaxmpm.model.state import State, check_state, check_state_dtypes
@@ -159,6 +159,13 @@ def simulate(
     return distributed.from_shards(scene, final, shards), distributed.from_shards(
         scene, history, shards, time_axis=True
     )
+
+
+def check_memory(scene: Scene, state: State) -> None:
+    """ValueError before a run whose grid cannot fit in the memory available: NUMBERS_PER_NODE
+    numbers per node and velocity field is less than any step holds, so a refusal is certain, not a
+    guess (a larger grid can still run out of memory later)."""
+    check_scene_memory(scene, np.asarray(state.x).dtype.itemsize)
 
 
 def _check_reached(scene, t, t0, t_end, n_steps):
