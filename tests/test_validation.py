@@ -49,6 +49,27 @@ def test_particle_outside_grid():
         _scene(phases=(Phase("block", "m", Box((0.5, 0.2), (1.3, 0.6))),))
 
 
+@pytest.mark.parametrize("kind", ["slip", "fixed", "separating", "free"])
+def test_a_body_across_a_slip_wall_is_its_mirror_half(kind):
+    """A slip wall is a mirror plane: a disk centred on it is sampled as its half inside (the mass of
+    a half disk, to the lattice's resolution), and the same disk across any other wall is refused."""
+    from jaxmpm.model.scene import Boundary, Sphere
+
+    disk = Phase("disk", "m", Sphere((0.0, 0.5), 0.3), ppc=4)
+    make = lambda: _scene(phases=(disk,), boundary=Boundary(faces=(("x_lo", kind),)))
+    if kind != "slip":
+        with pytest.raises(ValueError, match=r"phase\.disk\.geometry .* inside the grid: axis x in \[0\.0, 1\.0\]"):
+            make()
+        return
+    scene = make()
+    s0 = jaxmpm.init_state(scene, jaxmpm.default_params(scene))
+    assert float(jnp.min(s0.x[:, 0])) > 0.0
+    half = 0.5 * np.pi * 0.3**2 * 1000.0  # kg per m of depth
+    assert abs(float(jnp.sum(s0.mass)) / half - 1) < 0.02
+    with pytest.raises(ValueError, match=r"axis x in \[-1\.0, 1\.0\]"):  # a mirror plane, not a free pass
+        _scene(phases=(Phase("disk", "m", Sphere((-0.5, 0.5), 0.6)),), boundary=Boundary(faces=(("x_lo", "slip"),)))
+
+
 def test_bspline_particle_in_the_last_half_cell():
     with pytest.raises(ValueError, match=r"phase\.block\.geometry: particle .* outside the grid's usable region"):
         _scene(phases=(Phase("block", "m", Box((0.0, 0.2), (0.5, 0.6))),), shape="bspline2")

@@ -105,7 +105,9 @@ class Boundary:
     """Boundary condition on each face of the grid: 'free', 'slip' (normal velocity zero),
     'separating' (slip, but the material may leave the wall: only the normal velocity into the
     wall is zeroed, the peers' mpm88 condition) or 'fixed' (velocity zero). `layers` is the number
-    of node layers a condition applies to."""
+    of node layers a condition applies to. A 'slip' face is also a mirror plane: a body may be
+    given whole across it (a sphere centred on it), and only its part inside the grid is sampled,
+    so a symmetric 3D problem runs on a half or a quarter of its domain."""
 
     faces: tuple[tuple[str, str], ...] = ()
     layers: int = 1

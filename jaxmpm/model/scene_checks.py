@@ -70,6 +70,11 @@ def check_phases(scene: SceneFields) -> None:
             lo, hi = scene.grid.origin[d], scene.grid.hi[d]
             if d == 0 and scene.axisymmetric is True and lo == 0.0:
                 lo = -hi  # a body on the axis may be given whole (a sphere centred at r = 0)
+            # a slip wall is a mirror plane: a body cut by it is given whole, its part inside is sampled
+            if scene.boundary.kind(d, "lo") == "slip":
+                lo = min(lo, 2 * scene.grid.origin[d] - hi)
+            if scene.boundary.kind(d, "hi") == "slip":
+                hi = 2 * hi - scene.grid.origin[d]
             if p.geometry.lo[d] < lo - 1e-12 * abs(hi - lo) or p.geometry.hi[d] > hi + 1e-12 * abs(hi - lo):
                 fail(
                     f"phase.{p.name}.geometry",
