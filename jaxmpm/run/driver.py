@@ -37,7 +37,7 @@ from jaxmpm.model.state import State
 from jaxmpm.numerics.compile import jit
 from jaxmpm.run.distributed import from_shards, make_sharded_step, mesh_size
 from jaxmpm.run.health import CHECKED_FIELDS as CHECKED_FIELDS
-from jaxmpm.run.health import find_nonfinite, finite_and_inside, health_fn
+from jaxmpm.run.health import find_nonfinite, finite_and_inside, health_fn, reference_step, step_collapse
 from jaxmpm.run.planning import RunPlan, compile_seconds, planned_steps
 from jaxmpm.run.progress import REPORTS, report_steps
 from jaxmpm.run.progress import progress_bar as progress_bar
@@ -345,6 +345,10 @@ def host_driver(
         raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
     request = StopRequest()
+    dt_ref = None
+    if dt is None and not scene.body_force:  # the CFL step's collapse (a blow-up) stops the run
+        dt_ref = reference_step(scene, params, state, float(health(params, state)[1]))
+        dt_ref = dt_ref if np.isfinite(dt_ref) and dt_ref > 0 else None  # nothing moves and no wave: no reference
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:
@@ -378,6 +382,11 @@ def host_driver(
                     raise FloatingPointError(
                         f"{scene.name}: time does not advance at t = {t_before:.6g} s "
                         f"(dt = 0: a wave speed is non-finite or infinite)"
+                    )
+                collapse = None if dt_ref is None else step_collapse(scene, state, float(dt_cfl), dt_ref)
+                if collapse is not None:
+                    raise FloatingPointError(
+                        f"{scene.name}: {collapse} (after chunk {n_chunks}, chunks of {chunk} steps)"
                     )
                 if bar is not None:
                     bar.update(min(float(state.t), t_end) - t0 - bar.n)  # float32 t may pass t_end by round-off

@@ -45,6 +45,38 @@ def health_fn(scene: Scene) -> Callable[[Params, State], tuple[jax.Array, jax.Ar
     return health
 
 
+# A CFL step below this fraction of the run's reference step stops the run: its fastest wave has
+# grown a thousandfold, which no sound flow does (the run would crawl on in ever shorter steps)
+STEP_COLLAPSE = 1e-3
+
+
+def reference_step(scene: Scene, params: Params, state: State, dt_cfl: float) -> float:
+    """The CFL step (s) a sound run keeps above STEP_COLLAPSE of: the smaller of the run's first CFL
+    step dt_cfl and the step of a body falling through the grid's extent under gravity, cfl h /
+    sqrt(2 |g| L) (a cold, soft body may gain its speed that way)."""
+    g = float(np.linalg.norm(np.asarray(params.gravity, float)))
+    if g == 0.0:
+        return dt_cfl
+    extent = float(np.linalg.norm(np.asarray(scene.grid.hi, float) - np.asarray(scene.grid.origin, float)))
+    return min(dt_cfl, float(params.cfl) * scene.grid.h / np.sqrt(2 * g * extent))
+
+
+def step_collapse(scene: Scene, state: State, dt_cfl: float, dt_ref: float) -> str | None:
+    """None if the CFL step dt_cfl (s) is at least STEP_COLLAPSE of the reference step dt_ref (s),
+    else a message naming the fastest particle (its phase, speed, position and internal energy)."""
+    if not dt_cfl < STEP_COLLAPSE * dt_ref:
+        return None
+    v = np.asarray(state.v)
+    i = int(np.argmax(np.sum(v * v, axis=-1)))
+    return (
+        f"the run is blowing up at t = {float(state.t):.6g} s: its CFL step has fallen to {dt_cfl:.3g} s, "
+        f"1/{dt_ref / dt_cfl:.0f} of its reference step {dt_ref:.3g} s (allowed: at least {STEP_COLLAPSE:g} "
+        f"of it); the fastest particle, {i} of phase {_phase_of(scene, i)!r}, moves at "
+        f"{float(np.linalg.norm(v[i])):.3g} m/s at x = {np.asarray(state.x[i]).tolist()} m with a specific "
+        f"internal energy of {float(np.asarray(state.energy)[i]):.3g} J/kg"
+    )
+
+
 def _phase_of(scene, i):
     return next(p.name for p, sl in zip(scene.phases, phase_slices(scene)) if sl.start <= i < sl.stop)
 
