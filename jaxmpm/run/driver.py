@@ -345,10 +345,7 @@ def host_driver(
         raise Interrupted(request.signum, f"{scene.name}: stopped by {signal.Signals(request.signum).name}: {where}")
 
     request = StopRequest()
-    dt_ref = None
-    if dt is None and not scene.body_force:  # the CFL step's collapse (a blow-up) stops the run
-        dt_ref = reference_step(scene, params, state, float(health(params, state)[1]))
-        dt_ref = dt_ref if np.isfinite(dt_ref) and dt_ref > 0 else None  # nothing moves and no wave: no reference
+    dt_ref = None if dt is not None else reference_step(scene, params, state, float(health(params, state)[1]))
     if bar is not None:
         bar.update(float(state.t) - t0)
     try:
@@ -383,11 +380,8 @@ def host_driver(
                         f"{scene.name}: time does not advance at t = {t_before:.6g} s "
                         f"(dt = 0: a wave speed is non-finite or infinite)"
                     )
-                collapse = None if dt_ref is None else step_collapse(scene, state, float(dt_cfl), dt_ref)
-                if collapse is not None:
-                    raise FloatingPointError(
-                        f"{scene.name}: {collapse} (after chunk {n_chunks}, chunks of {chunk} steps)"
-                    )
+                if (collapse := step_collapse(scene, state, float(dt_cfl), dt_ref)) is not None:  # a blow-up
+                    raise FloatingPointError(f"{scene.name}: {collapse} (after chunk {n_chunks})")
                 if bar is not None:
                     bar.update(min(float(state.t), t_end) - t0 - bar.n)  # float32 t may pass t_end by round-off
                 if restart_every and n_chunks % restart_every == 0:

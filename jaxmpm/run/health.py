@@ -50,10 +50,13 @@ def health_fn(scene: Scene) -> Callable[[Params, State], tuple[jax.Array, jax.Ar
 STEP_COLLAPSE = 1e-3
 
 
-def reference_step(scene: Scene, params: Params, state: State, dt_cfl: float) -> float:
+def reference_step(scene: Scene, params: Params, state: State, dt_cfl: float) -> float | None:
     """The CFL step (s) a sound run keeps above STEP_COLLAPSE of: the smaller of the run's first CFL
     step dt_cfl and the step of a body falling through the grid's extent under gravity, cfl h /
-    sqrt(2 |g| L) (a cold, soft body may gain its speed that way)."""
+    sqrt(2 |g| L) (a cold, soft body may gain its speed that way). None (no check) with body forces,
+    whose accelerations are the user's, or where dt_cfl is not a positive finite step."""
+    if scene.body_force or not (np.isfinite(dt_cfl) and dt_cfl > 0):
+        return None
     g = float(np.linalg.norm(np.asarray(params.gravity, float)))
     if g == 0.0:
         return dt_cfl
@@ -61,10 +64,11 @@ def reference_step(scene: Scene, params: Params, state: State, dt_cfl: float) ->
     return min(dt_cfl, float(params.cfl) * scene.grid.h / np.sqrt(2 * g * extent))
 
 
-def step_collapse(scene: Scene, state: State, dt_cfl: float, dt_ref: float) -> str | None:
-    """None if the CFL step dt_cfl (s) is at least STEP_COLLAPSE of the reference step dt_ref (s),
-    else a message naming the fastest particle (its phase, speed, position and internal energy)."""
-    if not dt_cfl < STEP_COLLAPSE * dt_ref:
+def step_collapse(scene: Scene, state: State, dt_cfl: float, dt_ref: float | None) -> str | None:
+    """None if there is no reference step (dt_ref None) or the CFL step dt_cfl (s) is at least
+    STEP_COLLAPSE of the reference dt_ref (s), else a message naming the fastest particle (its
+    phase, speed, position and internal energy)."""
+    if dt_ref is None or not dt_cfl < STEP_COLLAPSE * dt_ref:
         return None
     v = np.asarray(state.v)
     i = int(np.argmax(np.sum(v * v, axis=-1)))
