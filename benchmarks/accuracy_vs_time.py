@@ -40,6 +40,7 @@ time (linear MPM's smallest error among its runs that took no longer than DDMP's
 Run:  python benchmarks/accuracy_vs_time.py                # bar, sod and dam (the debris cloud only with --only debris)
       python benchmarks/accuracy_vs_time.py --only debris --repeats 0 --out X.csv   # the debris cloud alone, one timed run a row
       python benchmarks/accuracy_vs_time.py --only dam --dam-cells 10,20 --repeats 1 --out X.csv   # the dam break alone
+      python benchmarks/accuracy_vs_time.py --only dam --dam-cells 80 --dam-schemes ddmp --repeats 0 --out X.csv
       python benchmarks/accuracy_vs_time.py --quick        # fewer rows, 2 minutes
 """
 
@@ -236,11 +237,11 @@ def measure(problem, shape, cells, ppc, dtype, repeats):
     }
 
 
-def rows_to_run(quick, dam_cells=(20, 40), only=None, debris_resolutions=(0.75, 1.0, 1.5, 2.0)):
+def rows_to_run(quick, dam_cells=(20, 40), only=None, debris_resolutions=(0.75, 1.0, 1.5, 2.0), dam_schemes=None):
     if only == "debris":
         return [("debris", c, round(100 * r), 2, "float64") for c in DEBRIS_CONFIGS for r in debris_resolutions]
     out = []
-    for shape in DAM_SCHEMES:
+    for shape in dam_schemes or DAM_SCHEMES:
         for cells in dam_cells:
             out.append(("dam", shape, cells, 2, "float64"))
     if only == "dam":
@@ -394,6 +395,10 @@ def main(argv=None):
         "--dam-cells",
         help="the dam break's cells per column width a, comma-separated (default 20,40; 10,20 with --quick)",
     )
+    ap.add_argument(
+        "--dam-schemes",
+        help=f"the dam break's rows, comma-separated, of {', '.join(DAM_SCHEMES)} (default: all)",
+    )
     ap.add_argument("--out", default=str(HERE / "results" / "accuracy_vs_time.csv"))
     add_overwrite(ap)
     ap.add_argument("--replot", metavar="CSV", help="only draw the PNG of a table this script wrote")
@@ -408,7 +413,12 @@ def main(argv=None):
     rows = []
     dam_cells = args.dam_cells or ("10,20" if args.quick else "20,40")
     debris_resolutions = tuple(float(r) for r in args.debris_resolutions.split(","))
-    for spec in rows_to_run(args.quick, tuple(int(c) for c in dam_cells.split(",")), args.only, debris_resolutions):
+    dam_schemes = args.dam_schemes.split(",") if args.dam_schemes else None
+    unknown = sorted(set(dam_schemes or ()) - set(DAM_SCHEMES))
+    if unknown:
+        ap.error(f"--dam-schemes: unknown {', '.join(unknown)}; allowed: {', '.join(DAM_SCHEMES)}")
+    cells = tuple(int(c) for c in dam_cells.split(","))
+    for spec in rows_to_run(args.quick, cells, args.only, debris_resolutions, dam_schemes):
         r = measure(*spec, repeats=args.repeats)
         rows.append(r)
         print(
