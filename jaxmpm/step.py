@@ -125,12 +125,13 @@ def seed_update(layout: Layout, params: Params, state: State, dt: jax.Array) -> 
     with jax.named_scope(STAGES[2]):  # 3
         grid = grid_acceleration(layout, params, state, stencils, beta, sums, acc_p, dt, m_min)
     with jax.named_scope(STAGES[3]):  # 4
-        moved, L, p_amb = grid_to_particle(layout, params, state, stencils, beta, sums, grid, dt, m_min)
+        moved, L, p_amb, L_work = grid_to_particle(layout, params, state, stencils, beta, sums, grid, dt, m_min)
     with jax.named_scope(STAGES[4]):  # 5
         # L's cotangent as one array: XLA had fused its computation from the constitutive
         # update's transpose into each consumer in the velocity gradient's transpose, repeated per
         # stencil node (that stage's transpose: 8.8 -> 2.0-2.6 forward runs of it, benchmarks/NOTES.md)
-        new = constitutive(layout, params, moved, tangent_fenced(L, dt > 0), dt, p_amb)
+        L_work = None if L_work is None else tangent_fenced(L_work, dt > 0)
+        new = constitutive(layout, params, moved, tangent_fenced(L, dt > 0), dt, p_amb, L_work)
     return replace(moved, t=state.t + dt, **new._asdict())
 
 

@@ -300,6 +300,22 @@ CASES = [
     ),
     ("unknown transfer", lambda: scene(transfer="flip"), r"transfer = 'flip' is invalid: allowed musl \| seed"),
     (
+        "unknown energy update",
+        lambda: scene(energy_update="exact"),
+        r"energy_update = 'exact' is invalid: allowed midpoint \| compatible",
+    ),
+    (
+        "compatible energy update with two fields",
+        lambda: two_fields(energy_update="compatible"),
+        r"energy_update = 'compatible' is invalid: allowed 'compatible' only with transfer = 'musl' and one "
+        r"velocity field \(here transfer = 'musl', 2 fields\)",
+    ),
+    (
+        "compatible energy update with the seed's remap",
+        lambda: scene(energy_update="compatible", transfer="seed"),
+        r"energy_update = 'compatible' is invalid: allowed 'compatible' only with transfer = 'musl'",
+    ),
+    (
         "APIC without B-splines",
         lambda: scene(transfer="apic"),
         r"transfer = 'apic' is invalid: allowed 'apic' only with shape = 'bspline2'",

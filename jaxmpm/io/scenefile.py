@@ -1,7 +1,7 @@
 """Scene files (TOML) and built-in scenes: read, write, and `load_scene`.
 
-A scene file has the top-level keys name, description, shape, transfer, cfl, t_end,
-axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
+A scene file has the top-level keys name, description, shape, transfer, energy_update, cfl,
+t_end, axisymmetric and window (`Scene`'s fields of those names) and the tables [grid] (cells, h,
 origin), [boundary] (x_lo ... z_hi: "free", "slip", "separating" or "fixed"; layers), [effects] (gravity,
 gravity_ramp, damping, body_force, drag, drag_length, linear_drag, drag_heating,
 interface_forces, continuity, c_h, fragmentation, artificial_viscosity, density_diffusion,
@@ -63,6 +63,7 @@ TOP_KEYS = (
     "description",
     "shape",
     "transfer",
+    "energy_update",
     "cfl",
     "t_end",
     "axisymmetric",
@@ -198,6 +199,7 @@ def scene_from_dict(d: Mapping) -> Scene:
         ("description", (str,), "a string"),
         ("shape", (str,), "ddmp | linear | bspline2"),
         ("transfer", (str,), "musl | seed | seed_halfstep | apic"),
+        ("energy_update", (str,), "midpoint | compatible"),
         ("cfl", (int, float), "a number in (0, 1]"),
         ("t_end", (int, float), "a number > 0 s"),
         ("axisymmetric", (bool,), "true | false"),
@@ -256,6 +258,8 @@ def scene_to_dict(scene: Scene) -> dict:
         "t_end": scene.t_end,
         "grid": scene.grid.to_dict(),
     }
+    if scene.energy_update != "midpoint":
+        d["energy_update"] = scene.energy_update
     if scene.axisymmetric:
         d["axisymmetric"] = True
     if scene.window is not None:
@@ -320,7 +324,7 @@ def scene_to_toml(scene: Scene) -> str:
     d = scene_to_dict(scene)
     lines = [
         f"{k} = {_toml_value(d[k])}"
-        for k in ("name", "description", "shape", "transfer", "cfl", "t_end", "axisymmetric", "window")
+        for k in ("name", "description", "shape", "transfer", "energy_update", "cfl", "t_end", "axisymmetric", "window")
         if k in d
     ]
     for table in ("grid", "boundary", "effects", "output"):

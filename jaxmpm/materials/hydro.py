@@ -1,5 +1,6 @@
 """Hydrocode material models (PHYSICS section 3): stress = s - p I, the pressure p(rho, e) from an
-equation of state solved together with the internal energy equation, the deviator s from a strength
+equation of state solved together with the internal energy equation (or, given the grid's force
+work, with the energy that work sets: `models` docstring, force_work), the deviator s from a strength
 model (hypoelastic with the Jaumann rate, then a radial return onto the yield surface), and failure
 criteria that leave failed material without tension or shear.
 
@@ -89,7 +90,7 @@ def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
     def bulk_modulus(c, rho, e, dim):
         return rho * bulk_sound_speed2(eos, c, rho, e)
 
-    def update(c, mp, L, D, dt, work, q, alpha_of):
+    def update(c, mp, L, D, dt, work, q, alpha_of, force_work=None):
         d = L.shape[-1]
         eye = jnp.eye(d, dtype=L.dtype)
         # the deviatoric rate is the velocity field's (D); the closure (E4) changes only the volume
@@ -117,6 +118,11 @@ def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
         h = 0.5 * work * trace(D)
 
         def energy_solve(s):
+            if force_work is not None:  # the work of the stress the grid saw, sigma_f^n : D_f
+                D_f, w_f, ambient = force_work
+                w_dev = w_f * jnp.sum(s_old * D_f, axis=(-1, -2))
+                e = mp.energy + w_dev - w_f * a_old * p_old * trace(D_f)
+                return (e if ambient is None else e + ambient), w_dev
             w_dev = work * jnp.sum(0.5 * (s_old + s) * D, axis=(-1, -2))
             e = (mp.energy + w_dev - h * (a_old * p_old + a_new * (A + qn))) / (1 + h * a_new * B)
             return e, w_dev
@@ -133,7 +139,8 @@ def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
             e_new, w_dev = energy_solve(s_new)
             p_new = A + B * e_new
             p_new = jnp.where(failed, jnp.maximum(p_new, 0.0), p_new)
-            e_new = mp.energy + w_dev - h * (a_old * p_old + a_new * (p_new + qn))
+            if force_work is None:  # the midpoint pressure's work with the pressure failure left
+                e_new = mp.energy + w_dev - h * (a_old * p_old + a_new * (p_new + qn))
         P = p_new + qn
         return mp._replace(
             F=F, stress=s_new - P[:, None, None] * eye, pressure=P, energy=e_new, eps_ps=eps_new, damage=damage

@@ -9,7 +9,8 @@ Two families:
     with the internal energy equation solved with it, a deviatoric strength model, failure criteria.
 `model_of(name)` returns the Model of either.
 
-All stress updates share one interface, update(c, mp, L, D, dt, work, q, alpha_of) -> MatPoint:
+All stress updates share one interface, update(c, mp, L, D, dt, work, q, alpha_of, force_work=None)
+-> MatPoint:
   c        the constants (dict of scalars, SI)
   mp       MatPoint of the particles at the start of the step plus their density after it
   L        (N, d, d) velocity gradient seen by the material (1/s; with the closure E4 its
@@ -20,6 +21,12 @@ All stress updates share one interface, update(c, mp, L, D, dt, work, q, alpha_o
   work     (N,) dt * V_mid / m, so that de = work * (sigma_f : D) (sigma_f: the stress the grid sees)
   q        (N,) artificial viscosity pressure at the end of the step (Pa) or None
   alpha_of eps_ps -> alpha (E5) or None without the closure: the grid sees s - alpha p I (E8)
+  force_work (D_f (N, d, d) 1/s, w_f (N,) s m^3/kg, de_a (N,) J/kg or None) or None: the rate and
+           weight of the work the grid's forces did this step and the ambient pressure's share
+           (`jaxmpm.stages.constitutive`, energy_update 'compatible'); the hydrocode models then take
+           de = w_f (sigma_f^n : D_f) + de_a, sigma_f^n the stress the grid saw, and the step
+           conserves the total energy exactly. The total-stress kinds take the midpoint stress's work (their
+           internal energy is the strain energy's account, not a state their stress depends on).
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ def _total_stress(fn, volumetric=False):
     pressure = -tr(stress) / d and the energy from the midpoint stress the grid sees. volumetric:
     fn also takes the density after the step, rho_new (N,) kg/m^3 (a fluid's state)."""
 
-    def update(c, mp, L, D, dt, work, q, alpha_of):
+    def update(c, mp, L, D, dt, work, q, alpha_of, force_work=None):
         F, sig = fn(c, mp.F, mp.stress, L, dt, mp.rho_new) if volumetric else fn(c, mp.F, mp.stress, L, dt)
         if (
             q is not None

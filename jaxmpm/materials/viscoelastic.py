@@ -39,6 +39,7 @@ def brittle_maxwell_update(
     work: jax.Array,
     q: jax.Array | None,
     alpha_of: Callable[[jax.Array], jax.Array] | None,
+    force_work: tuple | None = None,
 ) -> MatPoint:
     """Maxwell model with a damage-dependent relaxation time, for brittle material (the seed's
     brittle Taylor impact). Intact (damage 0): `maxwell_update` with tau. A particle fails (damage

@@ -28,6 +28,7 @@ from jaxmpm.model.geometry import (
 
 SHAPES = ("linear", "ddmp", "bspline2")
 TRANSFERS = ("musl", "seed", "seed_halfstep", "apic")
+ENERGY_UPDATES = ("midpoint", "compatible")
 BOUNDARIES = ("free", "slip", "separating", "fixed")
 AXES = "xyz"
 MAX_PPC = 8  # particles per cell per axis, at most

@@ -94,6 +94,13 @@ class Scene(SceneFields):
         remap done at the step's own positions), 'seed' (remap at the new positions),
         'seed_halfstep' (the seed's literal half-step position term) -- see jaxmpm.step.seed_update
         for what each does and measures -- or 'apic' (affine PIC / MLS, requires 'bspline2').
+      energy_update: how the hydrocode models' internal energy takes the step's work. 'midpoint'
+        (default): the midpoint stress on the end-of-step rate, second order along an isentrope,
+        but a strong impact gains energy. 'compatible': the work the grid's forces did (the start
+        stress on the midpoint velocity's rate), so the total energy is exact for every step, and
+        a shocked state's energy carries a bias of the order of the CFL number (docs/physics.md).
+        Only with transfer = 'musl' and one velocity field. The total-stress kinds take the
+        midpoint work with either.
       gravity: gravity acceleration (m/s^2, one per axis), or None for no gravity term.
       gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
       damping: mass-proportional nodal damping rate (1/s), or None for no damping term.

@@ -13,7 +13,18 @@ from jaxmpm.materials import Material, resolve_material
 from jaxmpm.materials.models import model_of
 from jaxmpm.model.geometry import Grid, as_float, fail, is_integer
 from jaxmpm.model.numbers import NUMBERS
-from jaxmpm.model.parts import AXES, CONTINUITY, FACE_NAMES, FRAGMENTATION, SHAPES, TRANSFERS, Boundary, Phase, is_fluid
+from jaxmpm.model.parts import (
+    AXES,
+    CONTINUITY,
+    ENERGY_UPDATES,
+    FACE_NAMES,
+    FRAGMENTATION,
+    SHAPES,
+    TRANSFERS,
+    Boundary,
+    Phase,
+    is_fluid,
+)
 from jaxmpm.model.scene_fields import SceneFields
 
 
@@ -107,13 +118,23 @@ def check_materials(scene: SceneFields) -> None:
 
 
 def check_scheme(scene: SceneFields) -> None:
-    """The shape function and the transfer scheme, and that 'apic' has B-splines."""
+    """The shape function, the transfer scheme and the energy update, that 'apic' has B-splines and
+    that the 'compatible' energy update has 'musl' and one velocity field."""
     if scene.shape not in SHAPES:
         fail("shape", scene.shape, " | ".join(SHAPES))
     if scene.transfer not in TRANSFERS:
         fail("transfer", scene.transfer, " | ".join(TRANSFERS))
     if scene.transfer == "apic" and scene.shape != "bspline2":
         fail("transfer", scene.transfer, "'apic' only with shape = 'bspline2'")
+    if scene.energy_update not in ENERGY_UPDATES:
+        fail("energy_update", scene.energy_update, " | ".join(ENERGY_UPDATES))
+    if scene.energy_update == "compatible" and (scene.transfer != "musl" or scene.n_fields > 1):
+        fail(
+            "energy_update",
+            scene.energy_update,
+            f"'compatible' only with transfer = 'musl' and one velocity field (here transfer = "
+            f"{scene.transfer!r}, {scene.n_fields} field{'s' if scene.n_fields > 1 else ''})",
+        )
 
 
 def check_numbers(scene: SceneFields) -> None:

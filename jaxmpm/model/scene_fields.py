@@ -21,6 +21,7 @@ class SceneFields:
     materials: tuple[Material, ...] = ()
     shape: str = "ddmp"
     transfer: str = "musl"
+    energy_update: str = "midpoint"
     gravity: tuple[float, ...] | None = None
     gravity_ramp: float = 0.0
     damping: float | None = None

@@ -66,12 +66,23 @@ class ConstitutiveUpdate(NamedTuple):
 
 
 def constitutive(
-    layout: Layout, params: Params, state: State, L: jax.Array, dt: ArrayLike, p_amb: jax.Array | None = None
+    layout: Layout,
+    params: Params,
+    state: State,
+    L: jax.Array,
+    dt: ArrayLike,
+    p_amb: jax.Array | None = None,
+    L_work: jax.Array | None = None,
 ) -> ConstitutiveUpdate:
     """Stage 5: volume V *= exp(dt tr L) (or the material rate of the closure, E4); per phase, its
-    model's update of F, stress, pressure, internal energy (de = dt V_mid sigma_f:D / m with midpoint
-    values, sigma_f the stress the grid sees), plastic strain and damage. Returns a `ConstitutiveUpdate`
-    (the new values of those State fields)."""
+    model's update of F, stress, pressure, internal energy, plastic strain and damage. Returns a
+    `ConstitutiveUpdate` (the new values of those State fields).
+    Internal energy: with L_work (N, d, d) 1/s, the velocity gradient the grid's forces did work
+    with over the step (`grid_to_particle`, energy_update 'compatible'), the hydrocode models take
+    the work of the start stress sigma_f^n on it, de = dt V^n sigma_f^n : sym(L_work) / m (with an
+    ambient pressure p_a, the grid's gauge stress and p_a on the volume change: the total energy
+    exact); else, and for the total-stress kinds, de = dt V_mid sigma_f:D / m with midpoint values
+    (sigma_f the stress the grid sees)."""
     # longer than 60 lines on purpose: stage 5 in its order (the closure's volume rate, E4; the artificial
     # viscosity; each phase's model; the tensile fragments), each step reading the arrays of the ones before
     scene = layout.scene
@@ -110,12 +121,22 @@ def constitutive(
         rho_new,
     )
 
-    def update(model, c, L_mat, D, work, q, gate, *mp):
+    D_f = None if L_work is None else 0.5 * (L_work + jnp.swapaxes(L_work, 1, 2))
+    work_start = None if L_work is None else dt * state.volume / state.mass
+    ambient_work = None
+    if L_work is not None and scene.ambient_pressure is not None:
+        # the grid saw the gauge stress sigma + p_a I, and the surroundings' energy p_a V follows the
+        # volume itself: de += p_a (dt V^n tr D_f - (V^{n+1} - V^n)) / m keeps the total exact
+        p_a = params.ambient_pressure
+        ambient_work = p_a * (work_start * jnp.trace(D_f, axis1=1, axis2=2) - (vol - state.volume) / state.mass)
+
+    def update(model, c, L_mat, D, work, q, gate, D_f, work_start, ambient_work, *mp):
         m0 = MatPoint(*mp)
         alpha_of = alpha_of_strain(tensile, params.c_h, gate, m0.eps_ps, m0.damage, m0.pressure)
-        return tuple(model.update(c, m0, L_mat, D, dt, work, q, alpha_of))
+        force_work = None if D_f is None else (D_f, work_start, ambient_work)
+        return tuple(model.update(c, m0, L_mat, D, dt, work, q, alpha_of, force_work))
 
-    new = MatPoint(*per_model(layout, params, update, L_mat, D, work, q, gate, *mp))
+    new = MatPoint(*per_model(layout, params, update, L_mat, D, work, q, gate, D_f, work_start, ambient_work, *mp))
     damage = new.damage
     if tensile:
         damage = tensile_fragment_fraction(params.c_h, damage, gate * jnp.maximum(new.eps_ps - state.eps_ps, 0.0))

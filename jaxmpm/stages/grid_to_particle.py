@@ -1,14 +1,17 @@
 """Stage 4 of the step (PHYSICS 2.1): grid to particle, for the seed's update and remap
 (transfer 'musl', 'seed', 'seed_halfstep'): the particles' velocity and position from the grid
 stage's `GridUpdate`, the remap of their momentum to the grid with the exchange on it (E14), the
-drag's heat, and the velocity gradient the constitutive stage takes (with the DDMP operator,
-E12, and the hoop rate of axisymmetric scenes).
+drag's heat, the velocity gradient the constitutive stage takes (with the DDMP operator, E12, and
+the hoop rate of axisymmetric scenes) and, with 'musl' and a hydrocode phase, the gradient the
+grid's forces did work with (`force_work_gradient`).
 
 Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import replace
 
 import jax
@@ -25,6 +28,7 @@ from jaxmpm.stages.density_diffusion import density_diffusion_rate, diffused_par
 from jaxmpm.stages.layout import Layout, apply_walls
 from jaxmpm.stages.multifield import ambient_pressure_by_phase, exchange_force
 from jaxmpm.stages.nodal import GridUpdate, NodalSums, ddmp_operators, grid_shape, particle_radius, scatter_named
+from jaxmpm.stages.phase_models import has_hydro
 
 
 def grid_to_particle(
@@ -37,17 +41,20 @@ def grid_to_particle(
     grid: GridUpdate,
     dt: jax.Array,
     m_min: jax.Array,
-) -> tuple[State, jax.Array, jax.Array | None]:
-    """Stage 4: (moved, L, p_amb): the State with the particles' new x, v (and energy, with
+) -> tuple[State, jax.Array, jax.Array | None, jax.Array | None]:
+    """Stage 4: (moved, L, p_amb, L_work): the State with the particles' new x, v (and energy, with
     drag_heating), the velocity gradient L (N, d, d) (3 x 3 axisymmetric) that drives their
-    constitutive update, and the closure's ambient pressure at the particles (N,) Pa (E8) or None.
-    stencils, beta, g: the step's stencil, DDMP blend and particle-to-grid scatter (stages 1, 2)."""
+    constitutive update, the closure's ambient pressure at the particles (N,) Pa (E8) or None, and
+    the gradient the grid's forces did work with (`force_work_gradient`; 'musl' with a hydrocode
+    phase, else None). stencils, beta, g: the step's stencil, DDMP blend and particle-to-grid
+    scatter (stages 1, 2)."""
     scene = layout.scene
     d = layout.dim
     v_n, a_n, operators, p_amb_n, volume_rate, impulses = grid
     p_amb = None if p_amb_n is None else interpolate(stencils, layout.field, p_amb_n[..., None])[:, 0]
     if scene.has_closure and layout.n_phases > 1 and not layout.ambient_by_field:
         p_amb = ambient_pressure_by_phase(layout, params, stencils, state)  # (E8)
+    L_work = None
     if scene.transfer == "musl":
         v = state.v + dt * interpolate(stencils, layout.field, a_n)
         vol_n = sums.volume[..., 0] if sums.volume is not None else None
@@ -61,21 +68,9 @@ def grid_to_particle(
             energy = energy + interpolate(stencils, layout.field, fields.safe_div(heat, m, m_min)[..., None])[:, 0]
         x = state.x + dt * interpolate(stencils, layout.field, v_r)
         with jax.named_scope("velocity_gradient"):
-            L = particle_velocity_gradient(
-                layout,
-                stencils,
-                v_r,
-                vol_n if beta is not None else None,
-                operators,
-                radius=particle_radius(layout, state),
+            L, L_work = musl_velocity_gradients(
+                layout, params, state, stencils, operators, vol_n if beta is not None else None, v_n, v_r, volume_rate
             )
-            if scene.continuity_form == "transport":  # (E7)
-                extra = volume_rate(v_r)
-                L = L + (extra / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
-            fluid = diffused_particles(layout)
-            if fluid is not None:
-                rate = density_diffusion_rate(layout, params, stencils, state, fluid)
-                L = L + (rate / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
         moved = replace(state, x=x, v=v, energy=energy)
     else:
         half = 0.5 if scene.transfer == "seed_halfstep" else 1.0
@@ -83,7 +78,63 @@ def grid_to_particle(
         moved = replace(state, x=state.x + dt * va[:, d:], v=state.v + dt * va[:, :d])
         with jax.named_scope("velocity_gradient"):
             L = velocity_gradient(layout, params, stencil(scene, moved.x), moved, dt, m_min)
-    return moved, L, p_amb
+    return moved, L, p_amb, L_work
+
+
+def musl_velocity_gradients(
+    layout: Layout,
+    params: Params,
+    state: State,
+    stencils: Stencil,
+    operators: ddmp.DDMPGrid | None,
+    nodal_volume: jax.Array | None,
+    v_n: jax.Array,
+    v_r: jax.Array,
+    volume_rate: Callable[[jax.Array], jax.Array] | None,
+) -> tuple[jax.Array, jax.Array | None]:
+    """(L, L_work) of a 'musl' step: the velocity gradient (N, d, d) of the remapped nodal velocity
+    v_r (K, n, d) with the continuity form's volume rate (E7) and the fluids' density diffusion
+    added to its trace, and, with energy_update = 'compatible' and a hydrocode phase, the gradient
+    the grid's forces did work with (`force_work_gradient` of v_r and the start velocity v_n, the
+    same rates added), else None. nodal_volume: DDMP's (K, n), or None."""
+    gradient = functools.partial(
+        particle_velocity_gradient,
+        layout,
+        stencils,
+        nodal_volume=nodal_volume,
+        operators=operators,
+        radius=particle_radius(layout, state),
+    )
+    L = gradient(v_r)
+    L_work = None
+    if layout.scene.energy_update == "compatible" and has_hydro(layout):
+        L_work = force_work_gradient(L, gradient(v_n))
+    rates = []
+    if layout.scene.continuity_form == "transport":  # (E7)
+        rates.append(volume_rate(v_r))
+    fluid = diffused_particles(layout)
+    if fluid is not None:
+        rates.append(density_diffusion_rate(layout, params, stencils, state, fluid))
+    eye = jnp.eye(L.shape[-1], dtype=L.dtype)
+    for rate in rates:
+        iso = (rate / L.shape[-1])[:, None, None] * eye
+        L = L + iso
+        L_work = None if L_work is None else L_work + iso
+    return L, L_work
+
+
+def force_work_gradient(L_end: jax.Array, L_start: jax.Array) -> jax.Array:
+    """(N, d, d) 1/s: the velocity gradient whose product with the start stress is the work the
+    grid's forces did over a 'musl' step, the gradient of the midpoint nodal velocity
+    (v_n + v_n^new) / 2. The step's kinetic energy changes by exactly
+    sum_n f_n . (v_n + v_n^new) / 2 dt (f_n from sigma^n, v_n^new the remap of the new particle
+    velocities at the same positions, sum_p m_p |a_p|^2 = sum_n m_n a_n . a-tilde_n), and
+    sum_n f_n . u_n = - sum_p V_p sigma_p : L_p[u] because the force and the gradient are adjoint
+    (E11/E12). So an internal energy that takes de = dt V^n sigma^n : sym(this) / m makes the total
+    exact, as in compatible hydrodynamics (Caramana et al., J. Comput. Phys. 146 (1998) 227); the
+    midpoint stress on the end gradient gained energy at every strong impact. L_end, L_start: the
+    gradients of the remapped and of the start nodal velocities (both with the walls applied)."""
+    return 0.5 * (L_end + L_start)
 
 
 def _with_hoop(layout, stencils, L, v, radius):

@@ -28,6 +28,11 @@ def fails(model_name: str) -> bool:
     return bool(split_model(model_name)[2])
 
 
+def has_hydro(layout: Layout) -> bool:
+    """Whether any phase's model is a hydrocode composition (an equation of state p(rho, e))."""
+    return any(model_of(layout.scene.material(p).model).hydro for p in layout.scene.phases)
+
+
 def pressure(layout: Layout, state: State) -> jax.Array:
     """(N,) pressure of every particle, Pa: state.pressure for the hydrocode models (EOS plus
     artificial viscosity), -tr(stress) / d for the total-stress models (so a user who edits the
