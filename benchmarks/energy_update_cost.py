@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import statistics
 import sys
 from pathlib import Path
 
@@ -31,7 +30,7 @@ jax.config.update("jax_enable_x64", True)
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
-from timing import interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
+from timing import cost_rows, interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
 from test_boundary import _fragment_scene  # noqa: E402
 
 SCENES = {
@@ -65,24 +64,7 @@ def main(argv=None):
     rows = []
     for scene_name, make_scene in SCENES.items():
         times = per_step_ms(make_scene, args.steps, args.repeats)
-        base, fastest = statistics.median(times["midpoint"]), min(times["midpoint"])
-        for name, t in times.items():
-            rows.append(
-                {
-                    "scene": scene_name,
-                    "energy_update": name,
-                    "ms_per_step": statistics.median(t),
-                    "ratio_to_midpoint": statistics.median(t) / base,
-                    "fastest_ms_per_step": min(t),
-                    "fastest_ratio_to_midpoint": min(t) / fastest,
-                    "runs_ms": " ".join(f"{x:.3f}" for x in t),
-                }
-            )
-            print(
-                f"{scene_name:18s} {name:10s} {rows[-1]['ms_per_step']:.3f} ms/step, x{rows[-1]['ratio_to_midpoint']:.3f}; "
-                f"fastest {min(t):.3f}, x{min(t) / fastest:.3f}",
-                flush=True,
-            )
+        rows += cost_rows(times, "midpoint", {"scene": scene_name}, "ratio_to_midpoint")
     write_csv(out, "energy_update_cost", rows, "float64")
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import statistics
 import sys
 from pathlib import Path
 
@@ -36,7 +35,7 @@ from jaxmpm.materials import elastic, models
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from outputs import add_overwrite, check_outputs  # noqa: E402  benchmarks/outputs.py
-from timing import interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
+from timing import cost_rows, interleaved_ms_per_step, step_loop, write_csv  # noqa: E402  benchmarks/timing.py
 from test_fluids import dam_break  # noqa: E402
 
 
@@ -98,25 +97,7 @@ def main(argv=None):
     rows = []
     for scene_name, (make_scene, configs) in SCENES.items():
         times = per_step_ms(make_scene, configs, args.steps, args.repeats)
-        base, fastest = statistics.median(times["default"]), min(times["default"])
-        for name, t in times.items():
-            rows.append(
-                {
-                    "scene": scene_name,
-                    "config": name,
-                    "ms_per_step": statistics.median(t),
-                    "ratio_to_default": statistics.median(t) / base,
-                    "fastest_ms_per_step": min(t),
-                    "fastest_ratio_to_default": min(t) / fastest,
-                    "runs_ms": " ".join(f"{x:.3f}" for x in t),
-                }
-            )
-            print(
-                f"{scene_name:14s} {name:40s} {rows[-1]['ms_per_step']:.3f} ms/step, x{rows[-1]['ratio_to_default']:.3f}; "
-                f"fastest {min(t):.3f}, x{min(t) / fastest:.3f} "
-                f"(runs {rows[-1]['runs_ms']})",
-                flush=True,
-            )
+        rows += cost_rows(times, "default", {"scene": scene_name}, "ratio_to_default")
     write_csv(out, "fluid_stabilisation_cost", rows, "float32")
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -50,3 +51,29 @@ def write_csv(out: Path, name: str, rows: list[dict], note: str = "") -> None:
         w.writeheader()
         w.writerows(rows)
     print(f"wrote {out}")
+
+
+def cost_rows(times: dict[str, list], baseline: str, labels: dict, ratio_name: str) -> list[dict]:
+    """One row per configuration of `times` ({name: [ms per step of each run]}, as
+    `interleaved_ms_per_step` gives): `labels` (the columns that say what was measured), the name as
+    `config`, the median and the fastest ms per step, their ratios to `baseline`'s (columns
+    ratio_name and 'fastest_' + ratio_name) and the runs; each row printed."""
+    base, fastest = statistics.median(times[baseline]), min(times[baseline])
+    rows = []
+    for name, t in times.items():
+        row = {
+            **labels,
+            "config": name,
+            "ms_per_step": statistics.median(t),
+            ratio_name: statistics.median(t) / base,
+            "fastest_ms_per_step": min(t),
+            f"fastest_{ratio_name}": min(t) / fastest,
+            "runs_ms": " ".join(f"{x:.3f}" for x in t),
+        }
+        rows.append(row)
+        print(
+            f"{' '.join(str(v) for v in labels.values()):18s} {name:40s} {row['ms_per_step']:.3f} ms/step, "
+            f"x{row[ratio_name]:.3f}; fastest {min(t):.3f}, x{min(t) / fastest:.3f} (runs {row['runs_ms']})",
+            flush=True,
+        )
+    return rows
