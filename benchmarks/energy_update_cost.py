@@ -1,5 +1,5 @@
 """What `energy_update = "compatible"` costs per step against the default "midpoint": one more
-velocity gradient (`jaxmpm.stages.grid_to_particle.force_work_gradient`) where a phase is a
+velocity gradient (of `jaxmpm.stages.grid_to_particle.force_work_velocity`) where a phase is a
 hydrocode model.
 
 Scenes (float64, one velocity field): the debris cloud (built-in `debris_cloud`, resolution 1,

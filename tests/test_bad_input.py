@@ -305,15 +305,9 @@ CASES = [
         r"energy_update = 'exact' is invalid: allowed midpoint \| compatible",
     ),
     (
-        "compatible energy update with two fields",
-        lambda: two_fields(energy_update="compatible"),
-        r"energy_update = 'compatible' is invalid: allowed 'compatible' only with transfer = 'musl' and one "
-        r"velocity field \(here transfer = 'musl', 2 fields\)",
-    ),
-    (
         "compatible energy update with the seed's remap",
         lambda: scene(energy_update="compatible", transfer="seed"),
-        r"energy_update = 'compatible' is invalid: allowed 'compatible' only with transfer = 'musl'",
+        r"energy_update = 'compatible' is invalid: allowed 'compatible' only with transfer = 'musl' \(here 'seed'\)",
     ),
     (
         "APIC without B-splines",

@@ -150,7 +150,7 @@ def test_a_hypervelocity_fragment_hitting_a_wall_does_not_gain_energy():
 @pytest.mark.parametrize("speed", [1000.0, 3000.0, 9000.0])
 def test_the_compatible_energy_update_keeps_a_hypervelocity_impact_exact(speed):
     """With energy_update = 'compatible' the hydrocode models' internal energy is the work the grid's
-    forces did (`force_work_gradient`), so the total is exact whatever the impact (measured: the
+    forces did (`force_work_velocity`), so the total is exact whatever the impact (measured: the
     largest total over the run 1 + 2.2e-16 of the start at 1 and 3 km/s, 1 + 0 at 9). With the
     default 'midpoint' it rises to 1.00009, 1.007 and 1.046 of the start: the impact's pressure rises
     within a step, and the energy takes its midpoint value where the forces worked with its start

@@ -139,7 +139,7 @@ def compose(eos: str, strength: str | None, failure: tuple[str, ...]) -> Model:
             e_new, w_dev = energy_solve(s_new)
             p_new = A + B * e_new
             p_new = jnp.where(failed, jnp.maximum(p_new, 0.0), p_new)
-            if force_work is None:  # the midpoint pressure's work with the pressure failure left
+            if force_work is None:  # the midpoint pressure's work, with the failed pressure clipped at 0
                 e_new = mp.energy + w_dev - h * (a_old * p_old + a_new * (p_new + qn))
         P = p_new + qn
         return mp._replace(

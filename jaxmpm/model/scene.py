@@ -99,8 +99,7 @@ class Scene(SceneFields):
         but a strong impact gains energy. 'compatible': the work the grid's forces did (the start
         stress on the midpoint velocity's rate), so the total energy is exact for every step, and
         a shocked state's energy carries a bias of the order of the CFL number (docs/physics.md).
-        Only with transfer = 'musl' and one velocity field. The total-stress kinds take the
-        midpoint work with either.
+        Only with transfer = 'musl'. The total-stress kinds take the midpoint work with either.
       gravity: gravity acceleration (m/s^2, one per axis), or None for no gravity term.
       gravity_ramp: time (s) over which gravity is ramped smoothly from 0 (0: no ramp).
       damping: mass-proportional nodal damping rate (1/s), or None for no damping term.

@@ -3,14 +3,13 @@
 stage's `GridUpdate`, the remap of their momentum to the grid with the exchange on it (E14), the
 drag's heat, the velocity gradient the constitutive stage takes (with the DDMP operator, E12, and
 the hoop rate of axisymmetric scenes) and, with 'musl' and a hydrocode phase, the gradient the
-grid's forces did work with (`force_work_gradient`).
+grid's forces did work with (`force_work_velocity`).
 
 Shapes: N particles, K velocity fields, n nodes, d dimensions; SI units.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -45,8 +44,8 @@ def grid_to_particle(
     """Stage 4: (moved, L, p_amb, L_work): the State with the particles' new x, v (and energy, with
     drag_heating), the velocity gradient L (N, d, d) (3 x 3 axisymmetric) that drives their
     constitutive update, the closure's ambient pressure at the particles (N,) Pa (E8) or None, and
-    the gradient the grid's forces did work with (`force_work_gradient`; 'musl' with a hydrocode
-    phase, else None). stencils, beta, g: the step's stencil, DDMP blend and particle-to-grid
+    the gradient the grid's forces did work with (`force_work_velocity`; 'compatible' with a
+    hydrocode phase, else None). stencils, beta, g: the step's stencil, DDMP blend and particle-to-grid
     scatter (stages 1, 2)."""
     scene = layout.scene
     d = layout.dim
@@ -92,49 +91,44 @@ def musl_velocity_gradients(
     v_r: jax.Array,
     volume_rate: Callable[[jax.Array], jax.Array] | None,
 ) -> tuple[jax.Array, jax.Array | None]:
-    """(L, L_work) of a 'musl' step: the velocity gradient (N, d, d) of the remapped nodal velocity
-    v_r (K, n, d) with the continuity form's volume rate (E7) and the fluids' density diffusion
-    added to its trace, and, with energy_update = 'compatible' and a hydrocode phase, the gradient
-    the grid's forces did work with (`force_work_gradient` of v_r and the start velocity v_n, the
-    same rates added), else None. nodal_volume: DDMP's (K, n), or None."""
-    gradient = functools.partial(
-        particle_velocity_gradient,
-        layout,
-        stencils,
-        nodal_volume=nodal_volume,
-        operators=operators,
-        radius=particle_radius(layout, state),
-    )
-    L = gradient(v_r)
+    """(L, L_work) of a 'musl' step, (N, d, d) 1/s each: L the velocity gradient of the remapped
+    nodal velocity v_r (K, n, d), with the continuity form's volume rate (E7) and the fluids' density
+    diffusion added to its trace; L_work the same of `force_work_velocity`(v_n, v_r), the gradient
+    the grid's forces did work with, where energy_update = 'compatible' and a phase is a hydrocode
+    model, else None. nodal_volume: DDMP's (K, n), or None."""
+    radius = particle_radius(layout, state)
+
+    def isotropic(rate, L):  # rate (N,) 1/s added to the trace of L
+        return L + (rate / L.shape[-1])[:, None, None] * jnp.eye(L.shape[-1], dtype=L.dtype)
+
+    def of_velocity(v):  # the gradient and E7's rate, both linear in the nodal velocity v
+        L = particle_velocity_gradient(layout, stencils, v, nodal_volume, operators, radius=radius)
+        return isotropic(volume_rate(v), L) if layout.scene.continuity_form == "transport" else L  # (E7)
+
+    L = of_velocity(v_r)
     L_work = None
     if layout.scene.energy_update == "compatible" and has_hydro(layout):
-        L_work = force_work_gradient(L, gradient(v_n))
-    rates = []
-    if layout.scene.continuity_form == "transport":  # (E7)
-        rates.append(volume_rate(v_r))
+        L_work = of_velocity(force_work_velocity(v_n, v_r))
     fluid = diffused_particles(layout)
     if fluid is not None:
-        rates.append(density_diffusion_rate(layout, params, stencils, state, fluid))
-    eye = jnp.eye(L.shape[-1], dtype=L.dtype)
-    for rate in rates:
-        iso = (rate / L.shape[-1])[:, None, None] * eye
-        L = L + iso
-        L_work = None if L_work is None else L_work + iso
+        rate = density_diffusion_rate(layout, params, stencils, state, fluid)
+        L = isotropic(rate, L)
+        L_work = None if L_work is None else isotropic(rate, L_work)
     return L, L_work
 
 
-def force_work_gradient(L_end: jax.Array, L_start: jax.Array) -> jax.Array:
-    """(N, d, d) 1/s: the velocity gradient whose product with the start stress is the work the
-    grid's forces did over a 'musl' step, the gradient of the midpoint nodal velocity
-    (v_n + v_n^new) / 2. The step's kinetic energy changes by exactly
-    sum_n f_n . (v_n + v_n^new) / 2 dt (f_n from sigma^n, v_n^new the remap of the new particle
-    velocities at the same positions, sum_p m_p |a_p|^2 = sum_n m_n a_n . a-tilde_n), and
-    sum_n f_n . u_n = - sum_p V_p sigma_p : L_p[u] because the force and the gradient are adjoint
-    (E11/E12). So an internal energy that takes de = dt V^n sigma^n : sym(this) / m makes the total
-    exact, as in compatible hydrodynamics (Caramana et al., J. Comput. Phys. 146 (1998) 227); the
-    midpoint stress on the end gradient gained energy at every strong impact. L_end, L_start: the
-    gradients of the remapped and of the start nodal velocities (both with the walls applied)."""
-    return 0.5 * (L_end + L_start)
+def force_work_velocity(v_start: jax.Array, v_end: jax.Array) -> jax.Array:
+    """(K, n, d) m/s: the nodal velocity whose gradient, with the start stress, is the work the
+    grid's forces did over a 'musl' step: the midpoint (v_n + v_n^new) / 2 of the start nodal
+    velocity and the remap of the new particle velocities at the same positions (both with the
+    walls applied). The step's kinetic energy changes by exactly sum_n f_n . (v_n + v_n^new) / 2 dt
+    (f_n from sigma^n; sum_p m_p v_p . a_p = sum_n m_n v_n . a_n and sum_p m_p |a_p|^2 =
+    sum_n m_n a_n . a-tilde_n), and sum_n f_n . u_n = - sum_p V_p sigma_p : L_p[u] because the force
+    and the gradient are adjoint (E11/E12; E7's rate is the interface forces' transpose). So an
+    internal energy that takes de = dt V^n sigma^n : sym(L[this]) / m makes the total exact, as in
+    compatible hydrodynamics (Caramana et al., J. Comput. Phys. 146 (1998) 227); the midpoint stress
+    on the end gradient gains energy at every strong impact."""
+    return 0.5 * (v_start + v_end)
 
 
 def _with_hoop(layout, stencils, L, v, radius):
