@@ -30,7 +30,7 @@ from calibration.arguments import (
 )
 from calibration.fit_command import cmd_fit
 from calibration.data import Measurements
-from calibration.model import theta_of
+from calibration.model import theta_of, through_plate_warning
 from calibration import synthetic
 from jaxmpm.run import compile_cache
 from jaxmpm.scenes.impact import DEBRIS_VISCOSITY
@@ -51,7 +51,7 @@ def cmd_table(args: argparse.Namespace) -> int:
     print(f"{model_header(args, model)}; C_h = {values} in one vmapped call", flush=True)
     t0 = time.perf_counter()
     thetas = np.log(np.stack([np.full(len(values), args.drag), values], -1))
-    v = np.asarray(model.velocities_batch(thetas, allow_short=True))
+    v, lead = (np.asarray(a) for a in model.table_batch(thetas, allow_short=True))
     wall = time.perf_counter() - t0
     for c, vi in zip(values, v):
         if np.isnan(vi).any():
@@ -59,8 +59,9 @@ def cmd_table(args: argparse.Namespace) -> int:
                 f"C_h = {c:g}: the run did not reach t_end in {model.n_steps} steps (its CFL step collapsed): "
                 "velocities not measured (nan)"
             )
-    rows = table_rows(meas, values, v)
+    rows = table_rows(meas, values, v, lead)
     print(format_table(rows))
+    print(through_plate_warning(values, lead, "C_h = "))
     print(f"wall time {wall:.1f} s (compilation included)")
     csv_path = out / "ch_table.csv"
     with open(csv_path, "w") as f:
@@ -70,29 +71,37 @@ def cmd_table(args: argparse.Namespace) -> int:
             f"drag heating {'on' if args.drag_heating else 'off'}, artificial viscosity "
             f"{tuple(args.artificial_viscosity)}, t_end = {model.t_end:g} s\n"
         )
-        f.write("source,C_h,point_1,point_2,point_4\n")
+        f.write("source,C_h,point_1,point_2,point_4,plate_lead_mm\n")
         for r in rows:
+            lead_mm = "" if r.get("lead") is None else f"{1e3 * r['lead']:.4f}"
             f.write(
-                f"{r['source']},{'' if r['C_h'] is None else r['C_h']},{r['v'][0]:.4f},{r['v'][1]:.4f},{r['v'][2]:.4f}\n"
+                f"{r['source']},{'' if r['C_h'] is None else r['C_h']},{r['v'][0]:.4f},{r['v'][1]:.4f},{r['v'][2]:.4f},"
+                f"{lead_mm}\n"
             )
     png = plots.ch_table(rows, out / "ch_table.png")
     print(f"wrote:\n  {csv_path}\n  {png}")
     return 0
 
 
-def table_rows(meas: Measurements, values: Sequence[float], v: np.ndarray) -> list[dict[str, Any]]:
-    """The table's rows (source, C_h, v (3,) km/s): the experiment, the seed's and jaxmpm's, v (len(values), 3)."""
-    rows = [dict(source="experiment", C_h=None, v=meas.experiment)]
-    rows += [dict(source="seed", C_h=c, v=meas.seed[c]) for c in sorted(meas.seed)]
-    rows += [dict(source="jaxmpm", C_h=c, v=vi) for c, vi in zip(values, v)]
+def table_rows(
+    meas: Measurements, values: Sequence[float], v: np.ndarray, lead: np.ndarray | None = None
+) -> list[dict[str, Any]]:
+    """The table's rows (source, C_h, v (3,) km/s, lead m or None): the experiment, the seed's and
+    jaxmpm's, v (len(values), 3), lead (len(values),) the plate's lead (`jaxmpm.features.plate_lead`) at t_end."""
+    rows = [dict(source="experiment", C_h=None, v=meas.experiment, lead=None)]
+    rows += [dict(source="seed", C_h=c, v=meas.seed[c], lead=None) for c in sorted(meas.seed)]
+    leads = [None] * len(values) if lead is None else [float(x) for x in lead]
+    rows += [dict(source="jaxmpm", C_h=c, v=vi, lead=li) for c, vi, li in zip(values, v, leads)]
     return rows
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    lines = [f"{'source':<12}{'C_h':>8}{'point 1':>10}{'point 2':>10}{'point 4':>10}   (km/s)"]
+    """The table as text: velocities in km/s, the plate's lead in mm (jaxmpm's rows)."""
+    lines = [f"{'source':<12}{'C_h':>8}{'point 1':>10}{'point 2':>10}{'point 4':>10}   (km/s){'plate lead':>14} (mm)"]
     for r in rows:
         ch = "" if r["C_h"] is None else f"{r['C_h']:g}"
-        lines.append(f"{r['source']:<12}{ch:>8}" + "".join(f"{x:>10.3f}" for x in r["v"]))
+        lead = "" if r.get("lead") is None else f"{1e3 * r['lead']:>14.2f}"
+        lines.append(f"{r['source']:<12}{ch:>8}" + "".join(f"{x:>10.3f}" for x in r["v"]) + f"{'':9}{lead}")
     return "\n".join(lines)
 
 

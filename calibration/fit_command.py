@@ -28,7 +28,7 @@ from calibration.arguments import (
 )
 from calibration.data import Measurements
 from calibration.fit import FitResult
-from calibration.model import CloudModel, theta_of
+from calibration.model import CloudModel, theta_of, through_plate_warning
 
 
 def check_fit_args(args: argparse.Namespace) -> tuple[float, float]:
@@ -110,14 +110,16 @@ def fit_result(
     res: FitResult,
     starts: list[dict[str, Any]] | None,
     errors: tuple[np.ndarray, np.ndarray, np.ndarray, float],
-    reached: float,
+    checks: tuple[float, float],
     land: dict[str, list] | None,
     wall: float,
 ) -> dict[str, Any]:
     """result.json's content: the fitted values with their standard errors (errors: those of
     `fit.standard_errors`), the residuals, the history, the starts, the landscape (land: C_d, C_h and
-    loss lists, or None), the time reached at the fit and the settings; wall: seconds."""
+    loss lists, or None), the checks at the fit (`CloudModel.checks`: the time reached (s) and the
+    plate's lead (m), `jaxmpm.features.plate_lead`) and the settings; wall: seconds."""
     se_theta, se, J, cond = errors
+    reached, lead = checks
     c_d, c_h = res.values
     fitted = meas.experiment + res.residuals
     return dict(
@@ -134,6 +136,7 @@ def fit_result(
         loss=res.loss,
         stopped=res.stopped,
         reached_t_end=bool(reached >= model.t_end * (1 - 1e-6)),
+        plate_lead_mm=1e3 * lead,
         points=list(meas.points),
         experiment_km_s=meas.experiment.tolist(),
         fitted_km_s=fitted.tolist(),
@@ -188,7 +191,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
     se_theta, se, J, cond = fitting.standard_errors(model.velocities, res.theta, res.residuals)
     c_d, c_h = res.values
     print(f"stopped: {res.stopped} ({len(res.history)} iterations, {res.evaluations} loss-and-gradient evaluations)")
-    reached = model.reached(res.theta, progress=not args.no_progress)
+    reached, lead = model.checks(res.theta, progress=not args.no_progress)
+    print(
+        through_plate_warning(["the fit"], [lead])
+        if lead < 0
+        else f"plate lead {1e3 * lead:.2f} mm (the plate's debris leads, as in the experiment)"
+    )
     if reached < model.t_end * (1 - 1e-6):
         print(
             f"warning: at the fit the run reaches only t = {reached:.4g} s of {model.t_end:g} s in {model.n_steps} "
@@ -212,7 +220,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         )
         land = dict(C_d=cds.tolist(), C_h=chs.tolist(), loss=loss.tolist())
     wall = time.perf_counter() - t0
-    result = fit_result(args, model, meas, start, res, starts, (se_theta, se, J, cond), reached, land, wall)
+    result = fit_result(args, model, meas, start, res, starts, (se_theta, se, J, cond), (reached, lead), land, wall)
     (out / "result.json").write_text(json.dumps(result, indent=1))
     pngs = plots.fit_report(result, out)
     print(f"wall time {wall:.1f} s\nwrote:\n  {out / 'result.json'}" + "".join(f"\n  {p}" for p in pngs))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import jax
@@ -91,14 +92,32 @@ class CloudModel:
         """(3,) km/s of points 1, 2, 4 at theta = (log C_d, log C_h). Differentiable."""
         return self.velocities_of_history(self.run(theta, checkpoint=checkpoint)[1])
 
+    def plate_lead_of_history(self, history: State) -> jax.Array:
+        """How far (m) the plate's material leads the projectile's at the last output
+        (`jaxmpm.features.plate_lead`; negative: projectile material has passed through the plate's debris)."""
+        return features.plate_lead(self.scene, jax.tree.map(lambda a: a[-1], history))
+
     def reached(self, theta: ArrayLike, progress: bool = True) -> float:
         """The time (s) a run at theta reaches in n_steps (it falls short of t_end where the CFL
         step collapses): check it outside jax.grad, where `velocities` cannot."""
-        return float(self.run(theta, progress=progress)[0].t)
+        return self.checks(theta, progress)[0]
+
+    def checks(self, theta: ArrayLike, progress: bool = True) -> tuple[float, float]:
+        """(time reached (s), plate lead (m)) of one run at theta: the checks a fit's result needs
+        beside its velocities (`reached`, `plate_lead_of_history`)."""
+        final, history = self.run(theta, progress=progress)
+        return float(final.t), float(self.plate_lead_of_history(history))
 
     def velocities_batch(self, thetas: ArrayLike, allow_short: bool = False, progress: bool = True) -> jax.Array:
         """(B, 3) km/s for a batch of theta (B, 2), in one vmapped call (`jaxmpm.ensemble`); with
         allow_short, members that do not reach t_end give NaN instead of an error."""
+        return self.table_batch(thetas, allow_short, progress)[0]
+
+    def table_batch(
+        self, thetas: ArrayLike, allow_short: bool = False, progress: bool = True
+    ) -> tuple[jax.Array, jax.Array]:
+        """((B, 3) km/s, (B,) m): `velocities_batch`'s velocities and each member's
+        `plate_lead_of_history`, from the same vmapped call."""
         thetas = np.asarray(thetas, dtype=float)
         values = dict(c_h=np.exp(thetas[:, 1]))
         if self.scene.drag is not None:
@@ -116,7 +135,23 @@ class CloudModel:
         )
         velocities = jax.vmap(self.velocities_of_history)(history)
         short = final.t < self.t_end * (1 - 1e-6)
-        return jnp.where(short[:, None], jnp.nan, velocities)
+        leads = jax.vmap(self.plate_lead_of_history)(history)
+        return jnp.where(short[:, None], jnp.nan, velocities), jnp.where(short, jnp.nan, leads)
+
+
+def through_plate_warning(labels: Sequence[Any], lead: ArrayLike, prefix: str = "") -> str:
+    """A line on the cloud's structure: the members whose projectile has passed through the plate's
+    debris (lead < 0; `jaxmpm.features.plate_lead`), or that none has."""
+    through = [
+        f"{prefix}{x:g}" if isinstance(x, float | int) else f"{prefix}{x}" for x, li in zip(labels, lead) if li < 0
+    ]
+    if not through:
+        return "plate lead > 0 in every run: the plate's debris leads the cloud, as in the experiment"
+    return (
+        f"warning: at {', '.join(through)} projectile material has passed through the plate's debris "
+        "(plate lead < 0): the exchange drag is too weak to hold it, point 1 is projectile material, and the "
+        "cloud's structure is not the experiment's (the plate's debris ahead)"
+    )
 
 
 def theta_of(c_d: float, c_h: float) -> np.ndarray:

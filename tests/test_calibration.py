@@ -525,7 +525,7 @@ def test_fit_refuses_bad_arguments_before_any_run(options, match):
 
 @pytest.mark.slow
 def test_the_fits_checks_after_the_optimiser_follow_no_progress(capfd):
-    """`fit --no-progress` runs the fitted point once more (`reached`) and the landscape
+    """`fit --no-progress` runs the fitted point once more (`checks`) and the landscape
     (`velocities_batch`): both without a progress bar when asked, with one by default."""
     from calibration.model import CloudModel
 
@@ -602,7 +602,7 @@ def test_spread_starts_fill_the_box_from_the_given_start():
 def test_fit_command_with_starts_runs_every_start_and_reports_them(tmp_path, capsys):
     """`fit --starts 2` at the coarsest resolution and a short end time: both starts are run in one
     vmapped call (each has its iterations), all are reported in result.json, and the fitted values
-    are those of the start with the lowest loss."""
+    are those of the start with the lowest loss; the run at the fit reports the plate's lead."""
     import json
 
     from calibration.__main__ import main
@@ -620,4 +620,26 @@ def test_fit_command_with_starts_runs_every_start_and_reports_them(tmp_path, cap
     assert result["fitted"]["C_d"] == pytest.approx(starts[best]["C_d"], rel=1e-12)
     assert result["fitted"]["C_h"] == pytest.approx(starts[best]["C_h"], rel=1e-12)
     assert result["loss"] == pytest.approx(starts[best]["loss"], rel=1e-12)
-    assert "2 starts in one vmapped call" in capsys.readouterr().out
+    assert 0 < result["plate_lead_mm"] < 2.21 + 0.54  # 0.2 us in: the projectile has not reached the plate's rear
+    printed = capsys.readouterr().out
+    assert "2 starts in one vmapped call" in printed and f"plate lead {result['plate_lead_mm']:.2f} mm" in printed
+
+
+def test_a_weak_drag_lets_the_projectile_through_the_plate_and_the_table_says_so():
+    """In the experiment's cloud the plate's debris (the external bubble) leads and encloses the
+    projectile's fragments, so point 1 is plate material. With two fields the exchange drag is what
+    holds the projectile's material behind the plate's: resolution 0.75, 3 us, C_h = 0.15, at
+    C_d = 1 the plate leads by 0.68 mm at the end; at C_d = 0.02 projectile material has passed
+    through it (lead -7.8 mm) and the front (point 1) is projectile material at 8.4 km/s, faster
+    than the impact. `plate_lead` measures it, `table_batch` returns it from the same vmapped call,
+    and the table and the fit warn."""
+    from calibration.model import CloudModel, through_plate_warning
+
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, fragmentation="tensile")
+    v, lead = (np.asarray(a) for a in model.table_batch(np.log([[0.02, 0.15], [1.0, 0.15]]), progress=False))
+    assert lead[0] < -2e-3 and lead[1] > 0.3e-3, lead
+    assert v[0, 0] > 6.71 > 6.0 > v[1, 0], v
+    warning = through_plate_warning([0.02, 1.0], lead, "C_d = ")
+    assert warning.startswith("warning: at C_d = 0.02 projectile material has passed") and "C_d = 1" not in warning
+    assert through_plate_warning(["the fit"], lead[:1]).startswith("warning: at the fit projectile material")
+    assert through_plate_warning([1.0], lead[1:]).startswith("plate lead > 0 in every run")

@@ -188,7 +188,9 @@ def debris_cloud(
     resolution 2: 5.35, 5.35, 6.15): jaxmpm.stages.closure.fragmentation_gate says why.
     With fragmentation = 'tensile' (one field) C_h moves point 4 as in the seed at resolution 2:
     4.28 (C_h = 0.02), 4.98, 5.50, 6.09 (C_h = 1), points 1 and 2 at 5.4-5.9 (docs/closure.md has
-    the sweeps at resolutions 0.75 to 3; the front, point 1, stays 0.4-0.6 km/s slow).
+    the sweeps at resolutions 0.75 to 3; the front, point 1, stays 0.4-0.6 km/s slow). With
+    fields = 2 a weak drag (C_d <= 0.2 at resolution 2) passes the projectile through the plate, and
+    point 1 is then projectile material: `jaxmpm.features.plate_lead` checks it.
     """
     # longer than 60 lines on purpose: most of it is the docstring (the scene, its sources and its measured
     # status); the code checks the options, then builds the bodies, the grid and the chamber in a few lines
