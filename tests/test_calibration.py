@@ -628,16 +628,16 @@ def test_fit_command_with_starts_runs_every_start_and_reports_them(tmp_path, cap
 def test_a_weak_drag_lets_the_projectile_through_the_plate_and_the_table_says_so():
     """In the experiment's cloud the plate's debris (the external bubble) leads and encloses the
     projectile's fragments, so point 1 is plate material. With two fields the exchange drag is what
-    holds the projectile's material behind the plate's: resolution 0.75, 3 us, C_h = 0.15, at
-    C_d = 1 the plate leads by 0.68 mm at the end; at C_d = 0.02 projectile material has passed
-    through it (lead -7.8 mm) and the front (point 1) is projectile material at 8.4 km/s, faster
-    than the impact. `plate_lead` measures it, `table_batch` returns it from the same vmapped call,
+    holds the projectile's material behind the plate's: resolution 0.75, 2 us, C_h = 0.15, at
+    C_d = 1 the plate leads by 0.81 mm at the end; at C_d = 0.02 projectile material has passed
+    through it (lead -2.5 mm) and the front (point 1) is projectile material at 7.5 km/s, faster
+    than the impact (5.3 km/s at C_d = 1). `plate_lead` measures it, `table_batch` returns it from the same vmapped call,
     and the table and the fit warn."""
     from calibration.model import CloudModel, through_plate_warning
 
-    model = CloudModel.build(resolution=0.75, fields=2, t_end=3e-6, fragmentation="tensile")
+    model = CloudModel.build(resolution=0.75, fields=2, t_end=2e-6, fragmentation="tensile")
     v, lead = (np.asarray(a) for a in model.table_batch(np.log([[0.02, 0.15], [1.0, 0.15]]), progress=False))
-    assert lead[0] < -2e-3 and lead[1] > 0.3e-3, lead
+    assert lead[0] < -1e-3 and lead[1] > 0.3e-3, lead
     assert v[0, 0] > 6.71 > 6.0 > v[1, 0], v
     warning = through_plate_warning([0.02, 1.0], lead, "C_d = ")
     assert warning.startswith("warning: at C_d = 0.02 projectile material has passed") and "C_d = 1" not in warning
