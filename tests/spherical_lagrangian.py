@@ -9,15 +9,15 @@ surface is free. Converges in N: the peak velocities of `blast_peaks` agree with
 import numpy as np
 
 
-def mie_gruneisen_ab(c: dict, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mie_gruneisen_ab(c: dict, rho: np.ndarray, xp=np) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of p = A(rho) + B(rho) e: jaxmpm's Mie-Grueneisen (Steinberg's form, Gamma = gamma0
-    in expansion), constants c = {rho0, c0, s, gamma0, a}."""
+    in expansion), constants c = {rho0, c0, s, gamma0, a}; xp the array module (numpy or jax.numpy)."""
     rho0, c0, s, g0, a = c["rho0"], c["c0"], c["s"], c["gamma0"], c["a"]
     mu = rho / rho0 - 1
-    mc = np.maximum(mu, 0.0)
-    den = np.maximum(1 - (s - 1) * mc, 0.05)
+    mc = xp.maximum(mu, 0.0)
+    den = xp.maximum(1 - (s - 1) * mc, 0.05)
     comp = rho0 * c0**2 * mc * (1 + (1 - g0 / 2) * mc - a / 2 * mc**2) / den**2
-    return np.where(mu > 0, comp, rho0 * c0**2 * mu), np.where(mu > 0, (g0 + a * mu) * rho0, g0 * rho)
+    return xp.where(mu > 0, comp, rho0 * c0**2 * mu), xp.where(mu > 0, (g0 + a * mu) * rho0, g0 * rho)
 
 
 def blast_peaks(
