@@ -16,7 +16,6 @@ benchmarks/results/debris_chamber.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import time
@@ -24,7 +23,7 @@ import time
 import jax
 
 from devices import describe  # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
+from outputs import add_overwrite, check_outputs, print_and_write_table  # benchmarks/outputs.py
 
 
 def build(resolution, pressure, t_end):
@@ -112,14 +111,7 @@ def main():
         f"debris cloud in a {a.pressure:g} Pa chamber against vacuum, float64, {describe()}, "
         f"{os.cpu_count()} CPUs, jax {jax.__version__}, {platform.machine()}"
     )
-    keys = list(rows[0])
-    print(" ".join(f"{k:>14}" for k in keys))
-    for r in rows:
-        print(" ".join(f"{v:>14.4g}" if isinstance(v, float) else f"{v!s:>14}" for v in r.values()))
-    with open(a.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    print_and_write_table(rows, a.out)
     print(f"wrote {a.out}")
 
 

@@ -25,7 +25,6 @@ Run:  python benchmarks/debris_cloud_reference.py                          # 0.2
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import sys
@@ -33,7 +32,7 @@ import sys
 import jax
 import numpy as np
 from devices import describe  # benchmarks/devices.py
-from outputs import add_overwrite, check_outputs  # benchmarks/outputs.py
+from outputs import add_overwrite, check_outputs, print_and_write_table  # benchmarks/outputs.py
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 EXPERIMENT, PLANAR = 6.3, 6.895  # km/s
@@ -136,14 +135,7 @@ def main():
         f"the debris cloud's axis, 3-6 us, km/s (experiment's leading edge {EXPERIMENT}), float64, {describe()}, "
         f"{os.cpu_count()} CPUs, jax {jax.__version__}, {platform.machine()}"
     )
-    keys = list(rows[0])
-    print(" ".join(f"{k:>22}" for k in keys))
-    for r in rows:
-        print(" ".join(f"{v:>22.4g}" if isinstance(v, float) else f"{v!s:>22}" for v in r.values()))
-    with open(a.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    print_and_write_table(rows, a.out, width=22)
     figure(png, curves, (ref["U"], ref["z"], a.reference_cells[-1] * 1e-3), particles)
     print(f"wrote {a.out} and {png}")
 

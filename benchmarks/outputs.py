@@ -4,6 +4,7 @@ benchmark refuses it before it measures anything, unless --overwrite is given.""
 
 from __future__ import annotations
 
+import csv
 import os
 import sys
 from pathlib import Path
@@ -40,6 +41,19 @@ def check_table(path) -> Path:
     if p.suffix != ".csv" or not p.is_file():
         sys.exit(_error(f"{os.fspath(path)} is invalid: allowed an existing .csv table written by this benchmark"))
     return p
+
+
+def print_and_write_table(rows: list[dict], path, width: int = 14) -> None:
+    """Print rows (dicts with the same keys) as a table of columns `width` wide (floats to 4
+    significant digits) and write them to the CSV file `path`."""
+    keys = list(rows[0])
+    print(" ".join(f"{k:>{width}}" for k in keys))
+    for r in rows:
+        print(" ".join(f"{v:>{width}.4g}" if isinstance(v, float) else f"{v!s:>{width}}" for v in r.values()))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
 
 
 def _error(message: str) -> int:
