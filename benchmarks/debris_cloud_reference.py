@@ -49,13 +49,13 @@ def window_slope(t, z):
     return -float(np.polyfit(t[keep], z[keep], 1)[0]) / 1e3
 
 
-def row(code, cells_mm, run, u_of):
+def row(code, cells_mm, run):
     return dict(
         code=code,
         cells_mm=cells_mm,
-        plate_front_km_s=window_mean(run["t"], u_of("plate")),
-        projectile_front_km_s=window_mean(run["t"], u_of("projectile_front")),
-        projectile_rear_km_s=window_mean(run["t"], u_of("projectile_rear")),
+        plate_front_km_s=window_mean(run["t"], run["plate"]),
+        projectile_front_km_s=window_mean(run["t"], run["projectile_front"]),
+        projectile_rear_km_s=window_mean(run["t"], run["projectile_rear"]),
         cloud_front_km_s=window_slope(run["t"], run["front"]),
         wall_s=run["wall"],
     )
@@ -117,8 +117,8 @@ def main():
     rows, curves = [], []
     for cells in a.reference_cells:
         ref = debris_cloud(al, cells * 1e-3)
-        rows.append(row("reference", cells, ref, lambda k, ref=ref: ref[k][:, 0]))
-        curves.append((f"reference, {cells:g} mm", ref["t"], ref["plate"][:, 0]))
+        rows.append(row("reference", cells, ref))
+        curves.append((f"reference, {cells:g} mm", ref["t"], ref["plate"]))
         print(rows[-1], flush=True)
     for res in a.resolutions:
         for code, scene in (
@@ -126,7 +126,7 @@ def main():
             ("jaxmpm scene", jaxmpm.load_scene("debris_cloud", resolution=res, fragmentation="tensile", c_h=a.c_h)),
         ):
             run = mpm_axial_slices(scene)
-            rows.append(row(code, 0.4 / res, run, lambda k, run=run: run[k]))
+            rows.append(row(code, 0.4 / res, run))
             curves.append((f"{code}, {0.4 / res:.3g} mm", run["t"], run["plate"]))
             if code == "jaxmpm hydrodynamic":
                 particles = (run["x"], run["is_plate"], res)

@@ -156,6 +156,13 @@ def bodies(c: dict, h: float, r_max: float, z_lo: float, z_hi: float, shapes, ve
     return conserved(jnp.asarray(W)), z_lo + (np.arange(nz) + 0.5) * h
 
 
+def leading_mass(mass: np.ndarray, budget: float) -> np.ndarray:
+    """How much of each item's mass (in the order given) the first `budget` kg take: the items in
+    front whole, the one that crosses the budget in part, the rest none."""
+    before = np.concatenate([[0.0], np.cumsum(mass)[:-1]])
+    return np.clip(budget - before, 0.0, mass)
+
+
 def axial_slice(U, h: float, z: np.ndarray, tracer: int, r_axis: float, depth: float, rho0: float, top=False):
     """The leading (or, top, trailing) part of body `tracer`'s mass within r_axis of the axis: the
     areal mass rho0 * depth of that column, taken from the lowest (highest) z on. -> (its mass-weighted
@@ -167,8 +174,7 @@ def axial_slice(U, h: float, z: np.ndarray, tracer: int, r_axis: float, depth: f
     momentum = (U[4 + tracer] / np.maximum(U[0], 1e-300) * U[2] * weight).sum(0)
     order = slice(None, None, -1) if top else slice(None)
     mass, momentum, z = mass[order], momentum[order], z[order]
-    before = np.concatenate([[0.0], np.cumsum(mass)[:-1]])
-    taken = np.clip(rho0 * depth / h * weight.sum() - before, 0.0, mass)  # mass per row: sum of rho r
+    taken = leading_mass(mass, rho0 * depth / h * weight.sum())  # mass per row: sum of rho r
     share = taken / np.where(mass > 0, mass, 1.0)
     return (momentum * share).sum() / taken.sum(), (z * taken).sum() / taken.sum()
 
@@ -210,7 +216,7 @@ def debris_cloud(
     touching the plate's top face z = 0 at t = 0), outputs every `every` to t_end. -> dict of arrays
     over the outputs: t; 'plate' and 'projectile_front' (the leading 0.3 mm of the plate's and of the
     projectile's material within 1 mm of the axis), 'projectile_rear' (the trailing 0.3 mm of the
-    projectile's there): each (u_z, mass-weighted z); 'front' the z below which 1e-4 of all mass lies;
+    projectile's there): each its mass-weighted u_z (m/s); 'front' the z below which 1e-4 of all mass lies;
     'U' the conserved fields at t_end (tracers: plate, projectile), 'z' the cells' centres (m), 'wall' (s)."""
     import time
 
@@ -224,9 +230,9 @@ def debris_cloud(
     for t_out in np.arange(every, t_end + 1e-12, every):
         U, t = advance(c, U, t, t_out, h)
         out["t"].append(float(t))
-        out["plate"].append(axial_slice(U, h, z, 0, 1e-3, 0.3e-3, c["rho0"]))
-        out["projectile_front"].append(axial_slice(U, h, z, 1, 1e-3, 0.3e-3, c["rho0"]))
-        out["projectile_rear"].append(axial_slice(U, h, z, 1, 1e-3, 0.3e-3, c["rho0"], top=True))
+        out["plate"].append(axial_slice(U, h, z, 0, 1e-3, 0.3e-3, c["rho0"])[0])
+        out["projectile_front"].append(axial_slice(U, h, z, 1, 1e-3, 0.3e-3, c["rho0"])[0])
+        out["projectile_rear"].append(axial_slice(U, h, z, 1, 1e-3, 0.3e-3, c["rho0"], top=True)[0])
         out["front"].append(mass_front(U, h, z, 1e-4))
     wall = time.perf_counter() - start
     return {k: np.asarray(v) for k, v in out.items()} | {"U": np.asarray(U), "z": z, "wall": wall}
@@ -271,8 +277,7 @@ def mpm_axial_slices(scene) -> dict:
         near = x[k, part, 0] < 1e-3
         z, vz, mm = x[k, part, 1][near], v[k, part, 1][near], m[k, part][near]
         order = np.argsort(-z if top else z)
-        before = np.concatenate([[0.0], np.cumsum(mm[order])[:-1]])
-        taken = np.clip(column * 0.3e-3 - before, 0.0, mm[order])
+        taken = leading_mass(mm[order], column * 0.3e-3)
         return (vz[order] * taken).sum() / taken.sum()
 
     out = {

@@ -65,9 +65,9 @@ def test_the_debris_clouds_axis_moves_as_in_an_independent_eulerian_code():
     ref = debris_cloud(AL, 2e-4)
     mpm = mpm_axial_slices(hydrodynamic_debris_cloud(2.0))
     for name in ("plate", "projectile_front", "projectile_rear"):
-        a, b = window_mean(mpm["t"], mpm[name]), window_mean(ref["t"], ref[name][:, 0])
+        a, b = window_mean(mpm["t"], mpm[name]), window_mean(ref["t"], ref[name])
         assert abs(a - b) < 120.0, (name, a, b)
-    assert window_mean(ref["t"], ref["plate"][:, 0]) < 5.9e3  # the experiment's 6.3 km/s is out of reach
+    assert window_mean(ref["t"], ref["plate"]) < 5.9e3  # the experiment's 6.3 km/s is out of reach
 
 
 def test_axial_slice_takes_the_leading_mass_of_a_column():
