@@ -36,7 +36,8 @@ RHO_FLOOR = 1e-6  # the smallest density over rho0
 
 
 def pressure_and_sound(c: dict, rho, e, p_min: float):
-    """(p, c) of density rho and specific internal energy e (negative e counts as 0)."""
+    """(p in Pa, c in m/s) of density rho (kg/m^3) and specific internal energy e (J/kg; negative e
+    counts as 0), arrays of one shape; p is floored at p_min (Pa)."""
     ones = jnp.ones_like(rho)
     (a, b), (da, db) = jax.jvp(lambda x: mie_gruneisen_ab(c, x, jnp), (rho,), (ones,))
     e = jnp.maximum(e, 0.0)
@@ -54,6 +55,7 @@ def primitives(c: dict, U):
 
 
 def conserved(W):
+    """The conserved U of the primitives W = (rho, u_r, u_z, e, phi...), shape (4 + tracers, nr, nz)."""
     rho, ur, uz, e = W[:4]
     return jnp.concatenate([jnp.stack([rho, rho * ur, rho * uz, rho * (e + 0.5 * (ur**2 + uz**2))]), rho * W[4:]])
 
@@ -97,7 +99,8 @@ def _hll(c: dict, WL, WR, normal: int, p_min: float):
 
 
 def rate(c: dict, U, h: float, p_min: float):
-    """dU/dt of the finite-volume form (cell (i, j) at r_i = (i + 1/2) h, faces at i h)."""
+    """dU/dt (U's units per s) of the finite-volume form, U (4 + tracers, nr, nz) on cells of side h (m),
+    cell (i, j) at r_i = (i + 1/2) h, faces at i h."""
     W = primitives(c, U)
     Wg = _with_ghosts(W)
     F = _hll(c, *_face_states(Wg[:, :, 2:-2], 1), 1, p_min)
@@ -111,6 +114,7 @@ def rate(c: dict, U, h: float, p_min: float):
 
 
 def stable_step(c: dict, U, h: float, p_min: float, cfl: float):
+    """The time step (s) the CFL number `cfl` allows on cells of side h (m)."""
     W = primitives(c, U)
     _, sound = pressure_and_sound(c, W[0], W[3], p_min)
     return cfl / jnp.max((jnp.abs(W[1]) + jnp.abs(W[2]) + 2 * sound) / h)
